@@ -1,0 +1,1 @@
+"""Learners and policies (installed as `mani_active_vision.agents`): FCN, DQN, exploration, baselines."""

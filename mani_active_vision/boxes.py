@@ -1,0 +1,51 @@
+"""Masks to boxes and the target statistics that reward and success are made of (batched, torch)."""
+
+from __future__ import annotations
+
+import torch
+
+
+def mask_to_box(mask: torch.Tensor) -> torch.Tensor:
+    """Bounding boxes (N, 4) = (x, y, w, h) of boolean masks (N, H, W), normalised by the image size.
+
+    (x, y) is the top-left corner; a box covers whole pixels, so one pixel has w = 1/W. Zeros where a
+    mask is empty. The one place the project turns a mask into the 4-number state.
+    """
+    if mask.ndim != 3 or mask.dtype != torch.bool:
+        raise ValueError(f"mask must be a bool tensor (N, H, W), got {tuple(mask.shape)} {mask.dtype}")
+    n, h, w = mask.shape
+    rows, cols = mask.any(2), mask.any(1)
+    row_idx = torch.arange(h, device=mask.device)
+    col_idx = torch.arange(w, device=mask.device)
+    top = torch.where(rows, row_idx, h).amin(1)
+    bottom = torch.where(rows, row_idx, -1).amax(1)
+    left = torch.where(cols, col_idx, w).amin(1)
+    right = torch.where(cols, col_idx, -1).amax(1)
+    box = torch.stack([left / w, top / h, (right - left + 1) / w, (bottom - top + 1) / h], -1).float()
+    return torch.where(rows.any(1)[:, None], box, torch.zeros_like(box))
+
+
+def target_stats(mask: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Per-image facts about a boolean target mask (N, H, W).
+
+    target_fraction: share of pixels that are target; target_visible; target_bbox (see mask_to_box);
+    touches_border: a target pixel lies on the image border; center_offset: distance of the mask's
+    centroid from the image centre, as a fraction of the image width (inf when not visible).
+    """
+    n, h, w = mask.shape
+    area = mask.sum((1, 2))
+    visible = area > 0
+    border = mask[:, 0, :].any(1) | mask[:, -1, :].any(1) | mask[:, :, 0].any(1) | mask[:, :, -1].any(1)
+    ys = torch.arange(h, device=mask.device, dtype=torch.float32) + 0.5
+    xs = torch.arange(w, device=mask.device, dtype=torch.float32) + 0.5
+    safe_area = area.clamp(min=1).float()
+    cy = (mask.sum(2).float() * ys).sum(1) / safe_area
+    cx = (mask.sum(1).float() * xs).sum(1) / safe_area
+    offset = torch.sqrt((cx - w / 2) ** 2 + (cy - h / 2) ** 2) / w
+    return dict(
+        target_fraction=area.float() / (h * w),
+        target_visible=visible,
+        target_bbox=mask_to_box(mask),
+        touches_border=border,
+        center_offset=torch.where(visible, offset, torch.full_like(offset, float("inf"))),
+    )

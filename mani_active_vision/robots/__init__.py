@@ -1,0 +1,1 @@
+"""Robots (ManiSkill agents): the iiwa with its wrist camera and its controller."""
