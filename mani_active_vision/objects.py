@@ -83,8 +83,12 @@ def unit_bounds(model: ObjectModel) -> np.ndarray:
     return np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])
 
 
-def build_object(scene, model: ObjectModel, size: float, color, name: str, scene_idxs=None, collision=True):
+def build_object(scene, model: ObjectModel, size: float, color, name: str, scene_idxs=None, collision=False):
     """A kinematic actor (objects never roll or tumble) of `model` scaled to largest extent `size`.
+
+    Without `collision` (the default) the object is visual only: nothing in the task touches objects
+    (the camera has no collision body and the workspace keeps link 7 at least 10 cm above the floor),
+    and skipping convex hulls halves the time to load a new scene.
 
     Returns (actor, bottom): `bottom` is the height of the object's lowest point above its origin's
     height, negated: place the origin at z = bottom to rest it on the floor.

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 
+import gymnasium as gym
 import numpy as np
 import sapien
 import torch
@@ -170,7 +171,7 @@ class ActiveVisionFindEnv(BaseEnv):
                 self.remove_from_state_dict_registry(actor)
                 slots[k].append(actor)
                 env_bottoms.append(bottom)
-            copy, _ = build_object(self.scene, chosen[0], sizes[0], colors[0], f"env{env}_target_copy", [env], collision=False)
+            copy, _ = build_object(self.scene, chosen[0], sizes[0], colors[0], f"env{env}_target_copy", [env])
             self.remove_from_state_dict_registry(copy)
             copies.append(copy)
             bottoms.append(env_bottoms)
@@ -233,6 +234,8 @@ class ActiveVisionFindEnv(BaseEnv):
 
     def reset(self, seed=None, options=None):
         self._hand_images = None
+        if isinstance(seed, (int, np.integer)):
+            gym.Env.reset(self, seed=int(seed))  # gymnasium's own seeding (env.np_random), which BaseEnv skips
         return super().reset(seed=seed, options=options)
 
     def step(self, action):
@@ -263,7 +266,8 @@ class ActiveVisionFindEnv(BaseEnv):
         return dict(hand_camera={k: v for k, v in images.items() if getattr(visual, k, False)})
 
     def get_sensor_params(self):
-        return dict(hand_camera=self._sensors["hand_camera"].get_params())
+        # ManiSkill returns its cached intrinsics; copy so that observations never share memory.
+        return dict(hand_camera={k: v.clone() for k, v in self._sensors["hand_camera"].get_params().items()})
 
     def _render_target_image(self) -> torch.Tensor:
         """Photograph the target's copy in the studio once per episode; non-target pixels grey."""
@@ -301,7 +305,7 @@ class ActiveVisionFindEnv(BaseEnv):
 
     def _get_obs_extra(self, info: dict):
         if self.obs_mode_struct.visual.rgb:
-            return dict(target_image=self._render_target_image())
+            return dict(target_image=self._render_target_image().clone())
         return dict(
             ee_pos=self.agent.ee_pose.p,
             target_pos=self.target.pose.p,

@@ -1,0 +1,94 @@
+"""How often can the success criterion be met? Measures it for candidate thresholds, privileged.
+
+For each random placement (seed), the camera is put (joint positions set directly, no stepping) at every
+point of the lattice that the six directions reach near the target (radius/height lattice of forward and
+up/down steps from the start pose; azimuth in fine steps around the target's, since orbiting at different
+radii reaches nearly any azimuth) and the wrist view is rendered. A placement counts as reachable for a
+(fraction, tolerance) pair when any candidate view meets it. The default success criterion of
+ActiveVisionFind-v0 is chosen from this table.
+
+    .venv/bin/python baselines/success_reachability.py --placements 40
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+import torch
+import tyro
+from tqdm import tqdm
+
+import mani_active_vision  # noqa: F401
+from mani_active_vision.boxes import target_stats
+from mani_active_vision.robots.iiwa import SEARCH_POS
+from mani_active_vision.robots.orbit_controller import solve_ik
+
+
+@dataclass
+class Args:
+    placements: int = 40
+    """number of random placements (seeds 0..placements-1)"""
+    resolution: int = 128
+    """wrist camera width = height"""
+    object_set: str = "train"
+    fractions: tuple[float, ...] = (0.05, 0.10, 0.15, 0.20)
+    tolerances: tuple[float, ...] = (0.10, 0.15, 0.20)
+
+
+def candidate_positions(target_xy: np.ndarray, step: float, pitch: float, config) -> np.ndarray:
+    """Lattice points (M, 3) near the target that forward/backward and up/down steps reach from the start."""
+    r_t = float(np.linalg.norm(target_xy))
+    az_t = math.atan2(target_xy[1], target_xy[0])
+    forward_r, forward_z = step * math.cos(pitch), -step * math.sin(pitch)
+    points = []
+    for a in range(-10, 40):
+        for b in range(-20, 20):
+            r = SEARCH_POS[0] + a * forward_r
+            z = SEARCH_POS[2] + a * forward_z + b * step
+            if r_t - 0.45 <= r <= r_t - 0.02 and config.min_height <= z <= 0.6:
+                for d_az in np.radians(np.arange(-10, 10.1, 2.0)):
+                    points.append((r * math.cos(az_t + d_az), r * math.sin(az_t + d_az), z))
+    return np.array(points)
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    env = gym.make(
+        "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
+        object_set=args.object_set, sensor_configs=dict(hand_camera=dict(width=args.resolution, height=args.resolution)),
+    )
+    base = env.unwrapped
+    controller = base.agent.controller
+    reachable = np.zeros((len(args.fractions), len(args.tolerances)))
+    for seed in tqdm(range(args.placements), desc="placements"):
+        env.reset(seed=seed)
+        target_xy = base.target.pose.p[0, :2].numpy()
+        points = torch.as_tensor(candidate_positions(target_xy, base.step_size, controller.config.pitch, controller.config), dtype=torch.float32)
+        qpos, ok = solve_ik(points, controller.config.pitch)
+        ok &= qpos[:, 3] <= controller.config.max_elbow
+        best = np.zeros_like(reachable, dtype=bool)
+        for q in qpos[ok]:
+            base.agent.robot.set_qpos(q[None])
+            base._hand_images = None
+            seg = base._hand_camera_images()["segmentation"][..., 0]
+            stats = target_stats(seg == base.target_seg_id[:, None, None])
+            if not bool(stats["target_visible"][0]) or bool(stats["touches_border"][0]):
+                continue
+            frac, off = float(stats["target_fraction"][0]), float(stats["center_offset"][0])
+            best |= (np.array(args.fractions)[:, None] <= frac) & (off <= np.array(args.tolerances)[None, :])
+        reachable += best
+    env.close()
+    share = reachable / args.placements
+    print(f"\nShare of {args.placements} random placements ({args.object_set} objects, {args.resolution}²) where some view")
+    print("is fully in view with target share >= fraction and centroid within tolerance·W of the centre:\n")
+    print("| fraction \\ tolerance | " + " | ".join(f"{t:.2f}" for t in args.tolerances) + " |")
+    print("|---|" + "---|" * len(args.tolerances))
+    for i, f in enumerate(args.fractions):
+        print(f"| {f:.2f} | " + " | ".join(f"{share[i, j]:.2f}" for j in range(len(args.tolerances))) + " |")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

@@ -1,0 +1,140 @@
+"""ActiveVisionFind-v0: registration, observations, reward, determinism, object sets, bad options."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from conftest import make_env
+
+import mani_active_vision as mav
+from mani_active_vision.objects import object_set
+
+
+def test_registered_and_observation_layout():
+    env = make_env(start_pose="search")
+    obs, info = env.reset(seed=0)
+    cam = obs["sensor_data"]["hand_camera"]
+    assert cam["rgb"].shape == (1, 64, 64, 3) and cam["rgb"].dtype == torch.uint8
+    assert cam["segmentation"].shape == (1, 64, 64, 1) and cam["segmentation"].dtype == torch.int16
+    target = obs["extra"]["target_image"]
+    assert target.shape == (1, 64, 64, 3) and target.dtype == torch.uint8
+    for key in ("success", "target_fraction", "target_visible", "target_bbox", "refused", "refused_count"):
+        assert key in info
+    assert info["target_bbox"].shape == (1, 4)
+    assert env.unwrapped.control_mode == "pd_ee_delta_pos"
+    assert env.unwrapped.target is env.unwrapped.objects[0]
+
+
+def test_target_image_shows_the_target_alone_centred():
+    env = make_env()
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        image = obs["extra"]["target_image"][0].numpy().astype(int)
+        alone = (image != 128).any(-1)  # non-target pixels are exactly grey
+        share = alone.mean()
+        assert 0.05 < share < 0.9, share  # zoomed: a large part of the image, not cut off
+        assert not (alone[0].any() or alone[-1].any() or alone[:, 0].any() or alone[:, -1].any())
+        ys, xs = np.nonzero(alone)
+        size = image.shape[0]
+        assert abs(xs.mean() + 0.5 - size / 2) < 0.15 * size and abs(ys.mean() + 0.5 - size / 2) < 0.15 * size
+
+
+def test_reward_is_share_of_target_pixels():
+    env = mav.DiscreteDirections(make_env(start_pose="search", placement="fixed"))
+    obs, _ = env.reset(seed=3)
+    seen = 0
+    for step in range(25):
+        obs, reward, terminated, truncated, info = env.step(0 if step < 12 else 2)
+        seg = obs["sensor_data"]["hand_camera"]["segmentation"][0, ..., 0]
+        expected = (seg == env.unwrapped.target_seg_id[0]).float().mean()
+        assert float(reward[0]) == pytest.approx(float(expected), abs=1e-7)
+        assert float(info["target_fraction"][0]) == pytest.approx(float(expected), abs=1e-7)
+        assert bool(info["target_visible"][0]) == bool(expected > 0)
+        seen += int(expected > 0)
+    assert seen > 0, "the fixed layout's target should come into view while orbiting left"
+
+
+def test_reward_modes():
+    env = mav.DiscreteDirections(make_env(start_pose="search", placement="fixed", reward_mode="normalized_dense"))
+    env.reset(seed=0)
+    for _ in range(6):
+        _, reward, _, _, info = env.step(0)
+        assert 0.0 <= float(reward[0]) <= 1.0
+        expected = min(float(info["target_fraction"][0]) / env.unwrapped.success_fraction, 1.0)
+        assert float(reward[0]) == pytest.approx(expected, rel=1e-5)
+
+
+def _rollout(env, seed, actions):
+    obs, info = env.reset(seed=seed)
+    frames, rewards = [obs["sensor_data"]["hand_camera"]["rgb"].clone()], []
+    for a in actions:
+        obs, reward, *_ = env.step(a)
+        frames.append(obs["sensor_data"]["hand_camera"]["rgb"].clone())
+        rewards.append(float(reward[0]))
+    return torch.stack(frames), rewards, obs["extra"]["target_image"].clone(), list(env.unwrapped.object_names[0])
+
+
+def test_same_seed_same_episode_and_different_seeds_differ():
+    env = mav.DiscreteDirections(make_env(start_pose="search"))
+    actions = [0, 0, 2, 4, 1, 3]
+    a = _rollout(env, 7, actions)
+    b = _rollout(env, 7, actions)
+    c = _rollout(env, 8, actions)
+    assert torch.equal(a[0], b[0]) and a[1] == b[1] and torch.equal(a[2], b[2]) and a[3] == b[3]
+    assert a[3] != c[3] or not torch.equal(a[0], c[0])
+
+
+def test_object_sets_are_disjoint():
+    train, unseen = object_set("train"), object_set("unseen")
+    assert len(train) == 800 and len(unseen) == 204
+    assert not {m.mesh_path for m in train} & {m.mesh_path for m in unseen}
+    env = make_env(object_set="unseen", num_objects=3)
+    env.reset(seed=0)
+    names = {m.name for m in unseen}
+    assert set(env.unwrapped.object_names[0]) <= names
+
+
+@pytest.mark.parametrize(
+    "kwargs, words",
+    [
+        (dict(object_set="foo"), ["object_set='foo'", "train", "unseen", "primitives"]),
+        (dict(placement="somewhere"), ["placement='somewhere'", "random", "fixed"]),
+        (dict(start_pose="ground"), ["start_pose='ground'", "sky", "search"]),
+        (dict(obs_mode="pointcloud"), ["obs_mode='pointcloud'", "rgb+segmentation", "state"]),
+        (dict(control_mode="pd_joint_pos"), ["control_mode='pd_joint_pos'", "pd_ee_delta_pos"]),
+        (dict(reward_mode="shaped"), ["reward_mode='shaped'", "dense", "sparse"]),
+        (dict(num_objects=0), ["num_objects=0"]),
+        (dict(step_size=0.5), ["step_size=0.5"]),
+    ],
+)
+def test_bad_options_are_clear_errors(kwargs, words):
+    with pytest.raises(ValueError) as err:
+        gym.make("ActiveVisionFind-v0", render_backend="cpu", **kwargs)
+    for word in words:
+        assert word in str(err.value)
+
+
+def test_obs_modes_rgb_and_state():
+    env = make_env(obs_mode="rgb", start_pose="search")
+    obs, info = env.reset(seed=0)
+    assert set(obs["sensor_data"]["hand_camera"]) == {"rgb"}
+    _, reward, *_ = env.step(np.zeros(3, dtype=np.float32))
+    assert float(reward[0]) == pytest.approx(float(env.unwrapped.evaluate()["target_fraction"][0]))
+    env = make_env(obs_mode="state", start_pose="search")
+    obs, _ = env.reset(seed=0)
+    assert obs.ndim == 2 and obs.dtype == torch.float32 and torch.isfinite(obs).all()
+
+
+def test_success_does_not_end_the_episode_unless_asked():
+    env = make_env(start_pose="search")
+    env.reset(seed=0)
+    base = env.unwrapped
+    base.success_fraction = 0.0  # make every visible, centred frame a success
+    try:
+        _, _, terminated, _, info = env.step(np.zeros(3, dtype=np.float32))
+        assert not bool(terminated[0])
+        base.terminate_on_success = True
+        _, _, terminated, _, info = env.step(np.zeros(3, dtype=np.float32))
+        assert bool(terminated[0]) == bool(info["success"][0])
+    finally:
+        base.success_fraction, base.terminate_on_success = 0.10, False
