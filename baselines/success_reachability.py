@@ -49,7 +49,7 @@ def candidate_positions(target_xy: np.ndarray, step: float, pitch: float, config
             r = SEARCH_POS[0] + a * forward_r
             z = SEARCH_POS[2] + a * forward_z + b * step
             if r_t - 0.45 <= r <= r_t - 0.02 and config.min_height <= z <= 0.6:
-                for d_az in np.radians(np.arange(-10, 10.1, 2.0)):
+                for d_az in np.radians(np.arange(-12, 12.1, 2.0)):
                     points.append((r * math.cos(az_t + d_az), r * math.sin(az_t + d_az), z))
     return np.array(points)
 
