@@ -230,6 +230,7 @@ class ActiveVisionFindEnv(BaseEnv):
             self.target_copy.set_pose(Pose.create_from_pq(studio, yaw_q(layout[:, 0, 2])))
             qpos = torch.as_tensor(self.agent.keyframes[self.start_pose].qpos, dtype=torch.float32).expand(b, -1)
             self.agent.reset(qpos)
+            self.agent.controller.start_episode(env_idx, qpos)
             self._target_image_stale[env_idx] = True
 
     def reset(self, seed=None, options=None):

@@ -80,24 +80,34 @@ class OrbitEEPosController(PDJointPosController):
         self.single_action_space = spaces.Box(-bound, bound, dtype=np.float32)
 
     def reset(self):
-        super().reset()
-        n, mask = self.scene.num_envs, self.scene._reset_mask
+        """Called by ManiSkill after every reset, with all envs in the reset mask even on a partial reset:
+        only a single env (or the first call) starts from the measured joint positions here. Batched
+        tasks call `start_episode` for the envs they reset."""
+        if getattr(self, "target_pos", None) is None or self.scene.num_envs == 1:
+            self.start_episode(torch.arange(self.scene.num_envs, device=self.device), self.qpos)
+
+    def start_episode(self, env_idx: torch.Tensor, qpos: torch.Tensor):
+        """Start episodes of envs `env_idx` whose arms were set to `qpos` (b, 7): hold there; the first step
+        starts from the matching rule position, or from the entry point when `qpos` is off the rule."""
+        n = self.scene.num_envs
         if getattr(self, "target_pos", None) is None:
             self.target_pos = torch.zeros(n, 3, device=self.device)
+            self._target_qpos = torch.zeros(n, 7, device=self.device)
+            self._drive_qpos = torch.zeros(n, 7, device=self.device)
             self.refused = torch.zeros(n, dtype=torch.bool, device=self.device)
             self.refused_count = torch.zeros(n, dtype=torch.int32, device=self.device)
-        qpos = self.qpos
+        qpos = qpos.to(self.device, torch.float32)
         pos = forward_position(qpos)
         rule_q, ok = solve_ik(pos, self.config.pitch)
-        on_rule = ok & ((rule_q - qpos).abs().amax(-1) < 1e-3)
-        # Off the rule (e.g. the "sky" start, qpos = 0) the first step starts from the entry point.
+        on_rule = (ok & ((rule_q - qpos).abs().amax(-1) < 1e-3))[:, None]
         entry = torch.as_tensor(self.config.entry_pos, dtype=pos.dtype, device=self.device).expand_as(pos)
-        self.target_pos[mask] = torch.where(on_rule[:, None], pos, entry)[mask]
         entry_q, _ = solve_ik(entry, self.config.pitch)
-        self._target_qpos[mask] = torch.where(on_rule[:, None], qpos, entry_q)[mask]
-        self.set_drive_targets(torch.where(mask[:, None], qpos, self._target_qpos))
-        self.refused[mask] = False
-        self.refused_count[mask] = 0
+        self.target_pos[env_idx] = torch.where(on_rule, pos, entry)
+        self._target_qpos[env_idx] = torch.where(on_rule, qpos, entry_q)
+        self._drive_qpos[env_idx] = qpos
+        self.refused[env_idx] = False
+        self.refused_count[env_idx] = 0
+        self.set_drive_targets(self._drive_qpos)
 
     def set_action(self, action):
         action = self._preprocess_action(action).clamp(-self.config.max_step, self.config.max_step)
@@ -113,18 +123,21 @@ class OrbitEEPosController(PDJointPosController):
         self.refused_count += self.refused.to(torch.int32)
         self.target_pos = torch.where(ok[:, None], new_pos, self.target_pos)
         self._target_qpos = torch.where(ok[:, None], new_q, self._target_qpos)
-        self.set_drive_targets(self._target_qpos)
+        # An env whose arm is off the rule (the sky start) holds there until its first accepted step.
+        self._drive_qpos = torch.where(ok[:, None], self._target_qpos, self._drive_qpos)
+        self.set_drive_targets(self._drive_qpos)
 
     def before_simulation_step(self):
         pass
 
     def get_state(self) -> dict:
-        return {"target_pos": self.target_pos, "target_qpos": self._target_qpos}
+        return {"target_pos": self.target_pos, "target_qpos": self._target_qpos, "drive_qpos": self._drive_qpos}
 
     def set_state(self, state: dict):
         self.target_pos = state["target_pos"].clone()
         self._target_qpos = state["target_qpos"].clone()
-        self.set_drive_targets(self._target_qpos)
+        self._drive_qpos = state["drive_qpos"].clone()
+        self.set_drive_targets(self._drive_qpos)
 
 
 @dataclass
