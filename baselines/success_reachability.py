@@ -34,6 +34,8 @@ class Args:
     resolution: int = 128
     """wrist camera width = height"""
     object_set: str = "train"
+    placement: str = "random"
+    """"random", or "fixed" (the paper's fixed scene: then one placement is enough)"""
     fractions: tuple[float, ...] = (0.05, 0.10, 0.15, 0.20)
     tolerances: tuple[float, ...] = (0.10, 0.15, 0.20)
 
@@ -58,7 +60,7 @@ def main(args: Args):
     torch.set_num_threads(1)
     env = gym.make(
         "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
-        object_set=args.object_set, sensor_configs=dict(hand_camera=dict(width=args.resolution, height=args.resolution)),
+        object_set=args.object_set, placement=args.placement, sensor_configs=dict(hand_camera=dict(width=args.resolution, height=args.resolution)),
     )
     base = env.unwrapped
     controller = base.agent.controller
@@ -82,7 +84,7 @@ def main(args: Args):
         reachable += best
     env.close()
     share = reachable / args.placements
-    print(f"\nShare of {args.placements} random placements ({args.object_set} objects, {args.resolution}²) where some view")
+    print(f"\nShare of {args.placements} {args.placement} placements ({args.object_set} objects, {args.resolution}²) where some view")
     print("is fully in view with target share >= fraction and centroid within tolerance·W of the centre:\n")
     print("| fraction \\ tolerance | " + " | ".join(f"{t:.2f}" for t in args.tolerances) + " |")
     print("|---|" + "---|" * len(args.tolerances))
