@@ -129,6 +129,7 @@ def test_success_does_not_end_the_episode_unless_asked():
     env = make_env(start_pose="search")
     env.reset(seed=0)
     base = env.unwrapped
+    default_fraction = base.success_fraction
     base.success_fraction = 0.0  # make every visible, centred frame a success
     try:
         _, _, terminated, _, info = env.step(np.zeros(3, dtype=np.float32))
@@ -137,4 +138,4 @@ def test_success_does_not_end_the_episode_unless_asked():
         _, _, terminated, _, info = env.step(np.zeros(3, dtype=np.float32))
         assert bool(terminated[0]) == bool(info["success"][0])
     finally:
-        base.success_fraction, base.terminate_on_success = 0.10, False
+        base.success_fraction, base.terminate_on_success = default_fraction, False
