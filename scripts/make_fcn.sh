@@ -4,7 +4,7 @@
 set -euo pipefail
 PY=${PY:-.venv/bin/python}
 DATA=${DATA:-data/seg64}
-$PY baselines/collect_segmentation_data.py --out-dir $DATA/train       --object-set train  --num-scenes 500 --seed 0
+$PY baselines/collect_segmentation_data.py --out-dir $DATA/train       --object-set train  --num-scenes 300 --seed 0
 $PY baselines/collect_segmentation_data.py --out-dir $DATA/val         --object-set train  --num-scenes 50  --seed 100000
 $PY baselines/collect_segmentation_data.py --out-dir $DATA/test_train  --object-set train  --num-scenes 50  --seed 200000
 $PY baselines/collect_segmentation_data.py --out-dir $DATA/test_unseen --object-set unseen --num-scenes 50  --seed 300000
