@@ -25,6 +25,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from mani_active_vision.boxes import mask_to_box
+
 WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn.pt")
 CHECKPOINT_FORMAT = "mani_active_vision.fcn/1"
 
@@ -173,14 +175,25 @@ def mask_counts(pred: torch.Tensor, mask: torch.Tensor) -> dict[str, torch.Tenso
         intersection=(pred & mask).sum((1, 2)), union=(pred | mask).sum((1, 2)),
         correct=(pred == mask).sum((1, 2)), predicted=pred.sum((1, 2)), true=mask.sum((1, 2)),
         pixels=torch.full((len(mask),), mask[0].numel()),
+        box_error=(mask_to_box(pred) - mask_to_box(mask)).abs().mean(1),
     )
+
+
+def dataset_counts(model: OneShotFCN, data: dict, batch_size: int = 64) -> dict[str, torch.Tensor]:
+    """`mask_counts` of the model's masks over a data set (dict of `scene`, `target`, `mask` arrays)."""
+    parts = []
+    for i in range(0, len(data["mask"]), batch_size):
+        pred = model.predict(data["scene"][i : i + batch_size], data["target"][i : i + batch_size])
+        parts.append(mask_counts(pred.cpu(), torch.as_tensor(data["mask"][i : i + batch_size])))
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
 def summarize_counts(counts: dict[str, torch.Tensor]) -> dict[str, float]:
     """pixel_accuracy (all samples); target_iou: mean per-sample IoU over samples that contain the target;
     pooled_target_iou: their summed intersections over summed unions (weights large targets more);
     false_positive_rate: share of samples without the target where anything is predicted;
-    fp_pixel_share: predicted pixels per pixel on those samples."""
+    fp_pixel_share: predicted pixels per pixel on those samples; box_error: mean absolute error of the
+    normalised (x, y, w, h) box on samples with the target; miss_rate: share of those with an empty mask."""
     present = counts["true"] > 0
     absent = ~present
     iou = counts["intersection"][present].float() / counts["union"][present].float()
@@ -191,6 +204,8 @@ def summarize_counts(counts: dict[str, torch.Tensor]) -> dict[str, float]:
         pooled_target_iou=float(counts["intersection"][present].sum() / counts["union"][present].sum()) if present.any() else nan,
         false_positive_rate=float((counts["predicted"][absent] > 0).float().mean()) if absent.any() else nan,
         fp_pixel_share=float(counts["predicted"][absent].sum() / counts["pixels"][absent].sum()) if absent.any() else nan,
+        box_error=float(counts["box_error"][present].mean()) if present.any() else nan,
+        miss_rate=float((counts["predicted"][present] == 0).float().mean()) if present.any() else nan,
         samples_with_target=int(present.sum()),
         samples_without_target=int(absent.sum()),
     )

@@ -28,7 +28,7 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import (
-    FCNConfig, OneShotFCN, class_weights, images_to_input, load_checkpoint, mask_counts, save_checkpoint, summarize_counts,
+    FCNConfig, OneShotFCN, class_weights, dataset_counts, images_to_input, load_checkpoint, save_checkpoint, summarize_counts,
 )
 from mani_active_vision.segmentation_data import load_segmentation_data
 
@@ -39,7 +39,7 @@ class Args:
     """folder with train/ and val/ data sets"""
     run_dir: str = "runs/fcn"
     """where checkpoints, history.json and curves.png go"""
-    epochs: int = 12
+    epochs: int = 8
     """passes over the training set"""
     batch_size: int = 32
     """samples per step"""
@@ -55,17 +55,6 @@ class Args:
     """torch threads (the machine is shared)"""
     resume: bool = False
     """continue from RUN_DIR/last.pt"""
-
-
-def evaluate_counts(model: OneShotFCN, data: dict, batch_size: int = 64) -> dict[str, torch.Tensor]:
-    """Per-sample pixel counts of the model's masks on a whole data set."""
-    model.eval()
-    parts = []
-    with torch.inference_mode():
-        for i in range(0, len(data["mask"]), batch_size):
-            pred = model.predict(data["scene"][i : i + batch_size], data["target"][i : i + batch_size])
-            parts.append(mask_counts(pred, torch.from_numpy(data["mask"][i : i + batch_size])))
-    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
 def plot_curves(history: list[dict], path: str) -> None:
@@ -142,7 +131,7 @@ def main(args: Args):
                                 torch.from_numpy(val["mask"][i : i + 128]).long(), weight=weights).item()
                 for i in range(0, len(val["mask"]), 128)
             ]
-        metrics = summarize_counts(evaluate_counts(model, val))
+        metrics = summarize_counts(dataset_counts(model, val))
         history.append(dict(epoch=epoch + 1, lr=lr, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
                             val=metrics, train_seconds=round(train_seconds, 1)))
         print(f"epoch {epoch + 1:2d} lr {lr:.2e} train loss {np.mean(losses):.4f} val loss {np.mean(val_losses):.4f} "
