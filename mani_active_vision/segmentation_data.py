@@ -99,7 +99,9 @@ def sample_camera_position(rng: np.random.Generator, object_xy: np.ndarray, conf
 
 
 def render_scene_views(env: gym.Env, scene_seed: int, rng: np.random.Generator, config: SegmentationDataConfig) -> dict[str, np.ndarray]:
-    """Reset `env` with `scene_seed` and render `views_per_scene` samples from poses drawn with `rng`."""
+    """Reset `env` with `scene_seed` and render `views_per_scene` samples from poses drawn with `rng`.
+
+    The arm is left where the last view put it, off the controller's target: reset `env` before stepping it."""
     obs, _ = env.reset(seed=scene_seed)
     base = env.unwrapped
     target_image = obs["extra"]["target_image"][0].cpu().numpy()
