@@ -14,9 +14,9 @@ from mani_active_vision.agents.fcn import (
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.segmentation_data import SegmentationDataConfig, render_scene_views
 
-SHIPPED_UNSEEN_IOU = 0.6
-"""Shipped weights' mean target IoU on a small fresh unseen-object batch must exceed this: measured 0.73 on
-this batch (0.75 and 0.81 on two other 3-scene batches; 0.74 on the 1,000-sample unseen test split, README
+SHIPPED_UNSEEN_IOU = 0.65
+"""Shipped weights' mean target IoU on a small fresh unseen-object batch must exceed this: measured 0.77 on
+this batch (0.85 and 0.78 on two other 3-scene batches; 0.79 on the 1,000-sample unseen test split, README
 "Vision"), less a margin for the batch's small size."""
 
 
