@@ -1,7 +1,8 @@
 """Observation wrapper: the env's observation -> the target's bounding box, the low-dimensional state for control.
 
 `source="ground_truth"` takes the box from the wrist camera's segmentation (needs a `segmentation` obs);
-the vision module adds `source="fcn"` (the one-shot segmentation network on rgb + target image).
+`source="fcn"` from the one-shot segmentation FCN (`mani_active_vision.agents.fcn`) on the wrist view and
+the target image (needs an `rgb` obs). After every observation `last_mask` holds the mask the box came from.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import torch
 
 from mani_active_vision.boxes import mask_to_box
 
-BOX_SOURCES = ("ground_truth",)
+BOX_SOURCES = ("ground_truth", "fcn")
 
 
 class BoxState(gym.ObservationWrapper):
@@ -20,14 +21,23 @@ class BoxState(gym.ObservationWrapper):
     `with_ee_pos`, the camera's commanded position (x, y, z in m) is appended (the paper's "link state").
 
     Batched ManiSkill envs give a torch tensor (N, 4 or 7); a numpy env (`CPUGymWrapper`) gives (4 or 7,).
+    `last_mask`: (N, H, W) bool torch tensor, the target mask of the latest observation (ground truth or FCN).
+    `fcn`: the model for `source="fcn"` (default: the shipped weights, `load_pretrained()`).
     """
 
-    def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False):
+    def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False, fcn=None):
         super().__init__(env)
         if source not in BOX_SOURCES:
             raise ValueError(f"source={source!r} is not one of: {', '.join(BOX_SOURCES)}")
-        if "segmentation" not in env.unwrapped.obs_mode:
-            raise ValueError(f"BoxState(source='ground_truth') needs a segmentation obs_mode, got {env.unwrapped.obs_mode!r}")
+        needed = "segmentation" if source == "ground_truth" else "rgb"
+        if needed not in env.unwrapped.obs_mode:
+            raise ValueError(f"BoxState(source={source!r}) needs an obs_mode with {needed}, got {env.unwrapped.obs_mode!r}")
+        if source == "fcn" and fcn is None:
+            from mani_active_vision.agents.fcn import load_pretrained
+
+            fcn = load_pretrained()
+        self.fcn = fcn
+        self.last_mask: torch.Tensor | None = None
         self.source = source
         self.with_ee_pos = with_ee_pos
         dim = 7 if with_ee_pos else 4
@@ -37,11 +47,14 @@ class BoxState(gym.ObservationWrapper):
         self.observation_space = gym.spaces.Box(-2.0, 2.0, shape=shape, dtype=np.float32)
 
     def observation(self, obs):
-        seg = torch.as_tensor(obs["sensor_data"]["hand_camera"]["segmentation"])
-        if self._numpy:
-            seg = seg[None]
         base = self.env.unwrapped
-        mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]
+        batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
+        if self.source == "fcn":
+            mask = self.fcn.predict(batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"]))
+        else:
+            seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])
+            mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]
+        self.last_mask = mask
         state = mask_to_box(mask)
         if self.with_ee_pos:
             state = torch.cat([state, base.agent.controller.target_pos.to(state.device)], -1)

@@ -1,0 +1,211 @@
+"""One-shot segmentation FCN: given the wrist view and one picture of the target, which pixels are the target.
+
+The paper's design (DESIGN §1), made small enough for a CPU core and trained from scratch (no pretrained
+VGG offline): one encoder, shared by both images, gives features at three depths (1/2, 1/4, 1/8 of the
+image side). At each depth the target's features are global-max-pooled to 1×1, tiled over the scene's
+features and concatenated with them; 1×1 convolutions fuse the pair. Transposed convolutions upsample the
+deepest fused map, adding the shallower fused maps as skip connections, to two class scores per pixel
+(background, target).
+
+    model = load_pretrained()                          # agents/weights/fcn.pt, ready in eval mode
+    mask = model.predict(scene_rgb, target_rgb)        # uint8 (N, H, W, 3) each -> bool (N, H, W)
+
+`predict` takes a scene of any size whose sides are multiples of 8: a size other than the one the model
+was trained at (`config.image_size`) is resized to it and the scores are resized back (bilinear), so the
+mask always has the scene's size. The target image is resized to `config.target_size` likewise.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from mani_active_vision.boxes import mask_to_box
+
+WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn.pt")
+CHECKPOINT_FORMAT = "mani_active_vision.fcn/1"
+
+
+@dataclass(frozen=True)
+class FCNConfig:
+    channels: tuple[int, int, int] = (16, 32, 64)
+    """encoder channels at 1/2, 1/4 and 1/8 of the image side"""
+    image_size: int = 64
+    """scene side the model is trained at; `predict` resizes other sizes to it"""
+    target_size: int = 64
+    """target image side (the task's `target_image_size`)"""
+
+
+def _conv(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(c_in, c_out, 3, stride, 1), nn.ReLU(inplace=True))
+
+
+def _fuse(channels: int) -> nn.Sequential:
+    """1×1 convolutions over [scene features, tiled target features]."""
+    return nn.Sequential(nn.Conv2d(2 * channels, channels, 1), nn.ReLU(inplace=True), nn.Conv2d(channels, channels, 1), nn.ReLU(inplace=True))
+
+
+class OneShotFCN(nn.Module):
+    """Scene (N, 3, H, W) and target (N, 3, h, w) float images -> class scores (N, 2, H, W)."""
+
+    def __init__(self, config: FCNConfig = FCNConfig()):
+        super().__init__()
+        self.config = config
+        c1, c2, c3 = config.channels
+        self.encoder = nn.ModuleList([
+            nn.Sequential(_conv(3, c1, 2)),
+            nn.Sequential(_conv(c1, c2, 2), _conv(c2, c2)),
+            nn.Sequential(_conv(c2, c3, 2), _conv(c3, c3)),
+        ])
+        self.fuse = nn.ModuleList([_fuse(c1), _fuse(c2), _fuse(c3)])
+        self.up3 = nn.ConvTranspose2d(c3, c2, 4, 2, 1)  # 1/8 -> 1/4
+        self.up2 = nn.ConvTranspose2d(c2, c1, 4, 2, 1)  # 1/4 -> 1/2
+        self.up1 = nn.ConvTranspose2d(c1, 2, 4, 2, 1)  # 1/2 -> 1: the two class scores
+
+    def encode(self, images: torch.Tensor) -> list[torch.Tensor]:
+        features = []
+        for block in self.encoder:
+            images = block(images)
+            features.append(images)
+        return features
+
+    def forward(self, scene: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        fused = []
+        for fuse, s, t in zip(self.fuse, self.encode(scene), self.encode(target)):
+            pooled = t.amax((2, 3), keepdim=True).expand(-1, -1, *s.shape[2:])
+            fused.append(fuse(torch.cat([s, pooled], 1)))
+        x = F.relu(self.up3(fused[2]) + fused[1])
+        x = F.relu(self.up2(x) + fused[0])
+        return self.up1(x)
+
+    @torch.inference_mode()
+    def predict(self, scene_rgb, target_rgb) -> torch.Tensor:
+        """Target mask (N, H, W) bool of uint8 scenes (N, H, W, 3) given uint8 target images (N, h, w, 3)."""
+        scene = images_to_input(scene_rgb, "scene_rgb")
+        target = images_to_input(target_rgb, "target_rgb")
+        if len(scene) != len(target):
+            raise ValueError(f"scene_rgb has {len(scene)} images but target_rgb has {len(target)}: one target per scene")
+        height, width = scene.shape[2:]
+        if height % 8 or width % 8:
+            raise ValueError(f"scene_rgb is {height}x{width}: sides must be multiples of 8")
+        device = next(self.parameters()).device
+        scene, target = scene.to(device), target.to(device)
+        size = self.config.image_size
+        if (height, width) != (size, size):
+            scene = F.interpolate(scene, size=(size, size), mode="area" if height > size else "bilinear")
+        if target.shape[2:] != (self.config.target_size,) * 2:
+            target = F.interpolate(target, size=(self.config.target_size,) * 2, mode="bilinear")
+        scores = self(scene, target)
+        if (height, width) != (size, size):
+            scores = F.interpolate(scores, size=(height, width), mode="bilinear")
+        return scores[:, 1] > scores[:, 0]
+
+
+def images_to_input(images, name: str = "images") -> torch.Tensor:
+    """uint8 images (N, H, W, 3), numpy or torch -> float (N, 3, H, W) in [-0.5, 0.5]; clear errors otherwise."""
+    if isinstance(images, np.ndarray):
+        images = torch.from_numpy(images)
+    if not isinstance(images, torch.Tensor):
+        raise TypeError(f"{name} must be a uint8 numpy array or torch tensor (N, H, W, 3), got {type(images).__name__}")
+    if images.dtype != torch.uint8:
+        raise TypeError(f"{name} must have dtype uint8 (0-255 rgb), got {images.dtype}")
+    if images.ndim != 4 or images.shape[-1] != 3:
+        hint = " (channels-first? pass channels-last (N, H, W, 3))" if images.ndim == 4 and images.shape[1] == 3 else ""
+        raise ValueError(f"{name} must have shape (N, H, W, 3), got {tuple(images.shape)}{hint}")
+    return images.permute(0, 3, 1, 2).float().div_(255).sub_(0.5)
+
+
+# ---------------------------------------------------------------- checkpoints
+def save_checkpoint(path: str, model: OneShotFCN, **extra) -> None:
+    """Weights + config (+ `extra`: plain python values such as metrics and the training arguments)."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    torch.save(dict(format=CHECKPOINT_FORMAT, config=asdict(model.config), state_dict=state, **extra), path)
+
+
+def load_checkpoint(path: str) -> tuple[OneShotFCN, dict]:
+    """(model in eval mode, the checkpoint dict) from `path`, loaded with `weights_only=True`.
+
+    A missing file is FileNotFoundError, an unreadable one or a different model a ValueError naming the path.
+    """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"FCN checkpoint {path!r} does not exist (train one: baselines/train_fcn.py)")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:
+        raise ValueError(f"FCN checkpoint {path!r} is not a readable torch checkpoint: {error}") from error
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        found = checkpoint.get("format") if isinstance(checkpoint, dict) else type(checkpoint).__name__
+        raise ValueError(f"{path!r} is not an FCN checkpoint: format {found!r}, expected {CHECKPOINT_FORMAT!r}")
+    config = dict(checkpoint["config"])
+    config["channels"] = tuple(config["channels"])
+    model = OneShotFCN(FCNConfig(**config))
+    try:
+        model.load_state_dict(checkpoint["state_dict"])
+    except RuntimeError as error:
+        raise ValueError(f"FCN checkpoint {path!r} does not match its config {config}: {error}") from error
+    return model.eval(), checkpoint
+
+
+def load_pretrained(path: str | None = None) -> OneShotFCN:
+    """The shipped, trained FCN (agents/weights/fcn.pt, or `path`), on the CPU in eval mode."""
+    model, _ = load_checkpoint(path or WEIGHTS_PATH)
+    return model
+
+
+# ---------------------------------------------------------------- training and metrics
+def class_weights(target_pixel_share: float, power: float = 0.5) -> torch.Tensor:
+    """Cross-entropy weights (background, target) against the class imbalance: inverse frequency raised
+    to `power` (0.5: the square root, milder than full inverse frequency, which floods the mask with
+    false positives), scaled so that background has weight 1."""
+    share = min(max(target_pixel_share, 1e-4), 0.5)
+    return torch.tensor([1.0, ((1 - share) / share) ** power])
+
+
+def mask_counts(pred: torch.Tensor, mask: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Per-sample pixel counts (N,) of predicted vs true bool masks (N, H, W): the parts of every metric."""
+    if pred.shape != mask.shape or pred.dtype != torch.bool or mask.dtype != torch.bool:
+        raise ValueError(f"pred and mask must be bool tensors of one shape, got {tuple(pred.shape)} {pred.dtype} and {tuple(mask.shape)} {mask.dtype}")
+    return dict(
+        intersection=(pred & mask).sum((1, 2)), union=(pred | mask).sum((1, 2)),
+        correct=(pred == mask).sum((1, 2)), predicted=pred.sum((1, 2)), true=mask.sum((1, 2)),
+        pixels=torch.full((len(mask),), mask[0].numel()),
+        box_error=(mask_to_box(pred) - mask_to_box(mask)).abs().mean(1),
+    )
+
+
+def dataset_counts(model: OneShotFCN, data: dict, batch_size: int = 64) -> dict[str, torch.Tensor]:
+    """`mask_counts` of the model's masks over a data set (dict of `scene`, `target`, `mask` arrays)."""
+    parts = []
+    for i in range(0, len(data["mask"]), batch_size):
+        pred = model.predict(data["scene"][i : i + batch_size], data["target"][i : i + batch_size])
+        parts.append(mask_counts(pred.cpu(), torch.as_tensor(data["mask"][i : i + batch_size])))
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+
+
+def summarize_counts(counts: dict[str, torch.Tensor]) -> dict[str, float]:
+    """pixel_accuracy (all samples); target_iou: mean per-sample IoU over samples that contain the target;
+    pooled_target_iou: their summed intersections over summed unions (weights large targets more);
+    false_positive_rate: share of samples without the target where anything is predicted;
+    fp_pixel_share: predicted pixels per pixel on those samples; box_error: mean absolute error of the
+    normalised (x, y, w, h) box on samples with the target; miss_rate: share of those with an empty mask."""
+    present = counts["true"] > 0
+    absent = ~present
+    iou = counts["intersection"][present].float() / counts["union"][present].float()
+    nan = float("nan")
+    return dict(
+        pixel_accuracy=float(counts["correct"].sum() / counts["pixels"].sum()),
+        target_iou=float(iou.mean()) if present.any() else nan,
+        pooled_target_iou=float(counts["intersection"][present].sum() / counts["union"][present].sum()) if present.any() else nan,
+        false_positive_rate=float((counts["predicted"][absent] > 0).float().mean()) if absent.any() else nan,
+        fp_pixel_share=float(counts["predicted"][absent].sum() / counts["pixels"][absent].sum()) if absent.any() else nan,
+        box_error=float(counts["box_error"][present].mean()) if present.any() else nan,
+        miss_rate=float((counts["predicted"][present] == 0).float().mean()) if present.any() else nan,
+        samples_with_target=int(present.sum()),
+        samples_without_target=int(absent.sum()),
+    )

@@ -1,0 +1,77 @@
+"""FCN latency: milliseconds per wrist frame on one CPU thread, batch 1 and 8, through `predict` (uint8 in,
+bool mask out, resizing included when the frame size differs from the training size).
+
+The machine is shared, so timings are noisy: medians and minima over repeats are printed, and, as a
+reference measured in the same run, the env's own step time at the same frame size (rgb+segmentation).
+
+  python baselines/benchmark_fcn.py                      # 128² (the env's default) and 64²
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+import torch
+import tyro
+
+import mani_active_vision  # noqa: F401  (registers the task)
+from mani_active_vision.agents.fcn import load_checkpoint, WEIGHTS_PATH
+
+
+@dataclass
+class Args:
+    weights: str | None = None
+    """FCN checkpoint (default: the shipped agents/weights/fcn.pt)"""
+    sizes: list[int] = field(default_factory=lambda: [128, 64])
+    """wrist frame sides to time"""
+    batch_sizes: list[int] = field(default_factory=lambda: [1, 8])
+    repeats: int = 50
+    """timed calls per setting (after 5 warm-up calls)"""
+    env_reference: bool = True
+    """also time env.step at each size (the reference)"""
+
+
+def time_calls(fn, repeats: int) -> np.ndarray:
+    for _ in range(5):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return np.array(times)
+
+
+def env_step_ms(size: int, repeats: int) -> float:
+    env = gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
+                   sensor_configs=dict(hand_camera=dict(width=size, height=size)))
+    env.reset(seed=0)
+    moves = np.array([[0.0, 0.03, 0.0], [0.0, -0.03, 0.0]], dtype=np.float32)
+    steps = iter(range(10**9))
+    times = time_calls(lambda: env.step(moves[next(steps) % 2]), repeats)
+    env.close()
+    return 1000 * float(np.median(times))
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
+    rng = np.random.default_rng(0)
+    print(f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}")
+    print("| frame | batch | ms/frame (median) | ms/frame (min) | env step ms (median, reference) | FCN / env step |")
+    print("|---|---|---|---|---|---|")
+    for size in args.sizes:
+        reference = env_step_ms(size, args.repeats) if args.env_reference else float("nan")
+        for batch in args.batch_sizes:
+            scene = rng.integers(0, 256, (batch, size, size, 3), dtype=np.uint8)
+            target = rng.integers(0, 256, (batch, model.config.target_size, model.config.target_size, 3), dtype=np.uint8)
+            times = 1000 * time_calls(lambda: model.predict(scene, target), args.repeats) / batch
+            median = float(np.median(times))
+            print(f"| {size}² | {batch} | {median:.2f} | {times.min():.2f} | {reference:.2f} | {median / reference:.2f} |")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

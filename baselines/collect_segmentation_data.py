@@ -1,0 +1,49 @@
+"""Render a segmentation data set for the one-shot FCN from ActiveVisionFind-v0 (shards + manifest.json).
+
+The default command set used for the shipped weights (`scripts/make_fcn.sh` runs them all):
+  python baselines/collect_segmentation_data.py --out-dir data/seg64/train --object-set train --num-scenes 300 --seed 0
+  ... val (train objects, seed 100000), test_train (seed 200000), test_unseen (unseen objects, seed 300000)
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import torch
+import tyro
+
+from mani_active_vision.segmentation_data import SegmentationDataConfig, collect_segmentation_data
+
+
+@dataclass
+class Args:
+    out_dir: str = "data/seg64/train"
+    """folder for the shards and manifest.json"""
+    object_set: str = "train"
+    """train | unseen | primitives (the unseen set is never used for training)"""
+    num_scenes: int = 300
+    """scenes (resets with new objects); samples = num_scenes * views_per_scene"""
+    views_per_scene: int = 20
+    """camera poses rendered per scene"""
+    image_size: int = 64
+    """wrist view side in pixels"""
+    seed: int = 0
+    """scene k is reset with seed + k: keep splits' seed ranges apart"""
+    scenes_per_shard: int = 50
+    """scenes per .npz shard"""
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    config = SegmentationDataConfig(
+        object_set=args.object_set, num_scenes=args.num_scenes, views_per_scene=args.views_per_scene,
+        image_size=args.image_size, seed=args.seed,
+    )
+    manifest = collect_segmentation_data(args.out_dir, config, scenes_per_shard=args.scenes_per_shard)
+    summary = {k: manifest[k] for k in ("num_samples", "share_with_target", "target_pixel_share", "seconds")}
+    print(f"{args.out_dir}: {json.dumps(summary)}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

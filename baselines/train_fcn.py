@@ -1,0 +1,151 @@
+"""Train the one-shot segmentation FCN (agents/fcn.py) on data from baselines/collect_segmentation_data.py.
+
+Pixelwise cross-entropy, as in the paper. Class imbalance (the target is ~1-2% of the pixels): the target
+class is weighted by the square root of its inverse pixel frequency in the training set (`class_weights`);
+full inverse frequency over-predicts the target. Validation (train objects, other scenes) every epoch;
+the best epoch by validation target IoU is saved with its config to RUN_DIR/best.pt, every epoch to
+RUN_DIR/last.pt (with the optimiser: `--resume` continues from it); curves to RUN_DIR/curves.png.
+
+  python baselines/train_fcn.py --data-dir data/seg64 --run-dir runs/fcn
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+import torch.nn.functional as F
+import tyro
+from tqdm import tqdm
+
+from mani_active_vision.agents.fcn import (
+    FCNConfig, OneShotFCN, class_weights, dataset_counts, images_to_input, load_checkpoint, save_checkpoint, summarize_counts,
+)
+from mani_active_vision.segmentation_data import load_segmentation_data
+
+
+@dataclass
+class Args:
+    data_dir: str = "data/seg64"
+    """folder with train/ and val/ data sets"""
+    run_dir: str = "runs/fcn"
+    """where checkpoints, history.json and curves.png go"""
+    epochs: int = 8
+    """passes over the training set"""
+    batch_size: int = 32
+    """samples per step"""
+    lr: float = 2e-3
+    """Adam learning rate at the start; cosine decay to lr/20 over `epochs`"""
+    weight_power: float = 0.5
+    """target class weight = (inverse pixel frequency) ** weight_power; 0 = plain cross-entropy"""
+    channels: tuple[int, int, int] = (16, 32, 64)
+    """encoder channels at 1/2, 1/4, 1/8 of the image side"""
+    seed: int = 0
+    """torch and shuffling seed"""
+    threads: int = 1
+    """torch threads (the machine is shared)"""
+    resume: bool = False
+    """continue from RUN_DIR/last.pt"""
+
+
+def plot_curves(history: list[dict], path: str) -> None:
+    epochs = [h["epoch"] for h in history]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    axes[0].plot(epochs, [h["train_loss"] for h in history], label="train")
+    axes[0].plot(epochs, [h["val_loss"] for h in history], label="val")
+    axes[0].set_title("weighted cross-entropy")
+    axes[1].plot(epochs, [h["val"]["target_iou"] for h in history], label="target IoU (per sample)")
+    axes[1].plot(epochs, [h["val"]["pooled_target_iou"] for h in history], label="target IoU (pooled)")
+    axes[1].plot(epochs, [h["val"]["pixel_accuracy"] for h in history], label="pixel accuracy")
+    axes[1].set_title("validation")
+    axes[2].plot(epochs, [h["val"]["false_positive_rate"] for h in history], label="FP rate (absent samples)")
+    axes[2].set_title("validation, samples without target")
+    for ax in axes:
+        ax.set_xlabel("epoch")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(args: Args):
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    os.makedirs(args.run_dir, exist_ok=True)
+    train = load_segmentation_data(os.path.join(args.data_dir, "train"))
+    val = load_segmentation_data(os.path.join(args.data_dir, "val"))
+    image_size = train["scene"].shape[1]
+    target_share = float(train["mask"].mean())
+    weights = class_weights(target_share, args.weight_power)
+    print(f"train {len(train['mask'])} samples, val {len(val['mask'])}; {image_size}² scenes; target pixels {target_share:.4f} "
+          f"-> class weights {weights.tolist()}")
+
+    model = OneShotFCN(FCNConfig(channels=args.channels, image_size=image_size, target_size=train["target"].shape[1]))
+    optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
+    history, start_epoch, best_iou = [], 0, -1.0
+    last_path, best_path = os.path.join(args.run_dir, "last.pt"), os.path.join(args.run_dir, "best.pt")
+    if args.resume:
+        model, checkpoint = load_checkpoint(last_path)
+        optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        history = checkpoint["history"]
+        start_epoch = len(history)
+        best_iou = max(h["val"]["target_iou"] for h in history)
+        print(f"resumed from {last_path} after epoch {start_epoch}")
+    print(f"parameters: {sum(p.numel() for p in model.parameters())}")
+
+    num_train = len(train["mask"])
+    steps_per_epoch = math.ceil(num_train / args.batch_size)
+    for epoch in range(start_epoch, args.epochs):
+        lr = args.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * epoch / args.epochs)))
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        model.train()
+        order = rng.permutation(num_train)
+        losses, started = [], time.time()
+        for step in tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{args.epochs}", leave=False):
+            idx = np.sort(order[step * args.batch_size : (step + 1) * args.batch_size])
+            scores = model(images_to_input(train["scene"][idx]), images_to_input(train["target"][idx]))
+            loss = F.cross_entropy(scores, torch.from_numpy(train["mask"][idx]).long(), weight=weights)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            losses.append(loss.item())
+        train_seconds = time.time() - started
+
+        model.eval()
+        with torch.inference_mode():
+            val_losses = [
+                F.cross_entropy(model(images_to_input(val["scene"][i : i + 128]), images_to_input(val["target"][i : i + 128])),
+                                torch.from_numpy(val["mask"][i : i + 128]).long(), weight=weights).item()
+                for i in range(0, len(val["mask"]), 128)
+            ]
+        metrics = summarize_counts(dataset_counts(model, val))
+        history.append(dict(epoch=epoch + 1, lr=lr, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
+                            val=metrics, train_seconds=round(train_seconds, 1)))
+        print(f"epoch {epoch + 1:2d} lr {lr:.2e} train loss {np.mean(losses):.4f} val loss {np.mean(val_losses):.4f} "
+              f"val IoU {metrics['target_iou']:.3f} (pooled {metrics['pooled_target_iou']:.3f}) "
+              f"pixel acc {metrics['pixel_accuracy']:.4f} FP rate {metrics['false_positive_rate']:.3f} ({train_seconds:.0f} s)")
+        save_checkpoint(last_path, model, optimizer=optimizer.state_dict(), history=history, args=asdict(args))
+        if metrics["target_iou"] > best_iou:
+            best_iou = metrics["target_iou"]
+            save_checkpoint(best_path, model, epoch=epoch + 1, val=metrics, args=asdict(args), class_weights=weights.tolist())
+        with open(os.path.join(args.run_dir, "history.json"), "w") as f:
+            json.dump(history, f, indent=1)
+        plot_curves(history, os.path.join(args.run_dir, "curves.png"))
+    print(f"best val target IoU {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

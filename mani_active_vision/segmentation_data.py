@@ -1,0 +1,166 @@
+"""Training data for the one-shot segmentation FCN, rendered from `ActiveVisionFind-v0` itself.
+
+One sample = (wrist view rgb (H, W, 3) uint8, the episode's target image (h, w, 3) uint8, the target's mask
+(H, W) bool). For every scene (a reset: new objects, new layout; distractors that share the target's
+colour or shape come from the task) the camera is put at `views_per_scene` poses of the orbit rule (the
+same family of poses the controller reaches: looking outward, 60° down), spread over the reachable set:
+- "target":     aimed at a point near the target (it is in view in most of these, sometimes cut by the border);
+- "distractor": aimed near another object (the target is often absent: negatives that look alike);
+- "anywhere":   a random reachable pose.
+The arm is set straight to the pose's joint positions (exact closed-form IK), so no physics steps are
+needed. Deterministic by seed: scene k is reset with `seed + k` and its poses come from `(seed, k)`.
+
+Stored as shards (`shard_00000.npz`, ... with arrays `scene`, `target`, `mask`, `scene_seed`, `view_mode`)
+and a `manifest.json` (config, counts, share of samples with the target, seconds it took).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from mani_active_vision.objects import OBJECT_SETS
+from mani_active_vision.robots.iiwa import CAMERA_PITCH
+from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik
+
+VIEW_MODES = ("target", "distractor", "anywhere")
+
+
+@dataclass(frozen=True)
+class SegmentationDataConfig:
+    object_set: str = "train"
+    num_scenes: int = 50
+    views_per_scene: int = 20
+    image_size: int = 64
+    """side of the wrist view (the env's `hand_camera` width = height)"""
+    num_objects: int = 5
+    seed: int = 0
+    view_mode_probs: tuple[float, float, float] = (0.65, 0.2, 0.15)
+    """probabilities of the VIEW_MODES"""
+    height_range: tuple[float, float] = (0.12, 1.0)
+    """camera (link 7) height range (m), sampled log-uniformly (close-ups are what zooming in sees);
+    the controller's workspace is 0.10-1.05"""
+    aim_jitter: float = 0.35
+    """std of the aim point's offset from the object, as a fraction of the camera height (m per m)"""
+
+    def __post_init__(self):
+        if self.object_set not in OBJECT_SETS:
+            raise ValueError(f"object_set={self.object_set!r} is not one of: {', '.join(OBJECT_SETS)}")
+        if self.image_size % 8:
+            raise ValueError(f"image_size={self.image_size} must be a multiple of 8 (the FCN downsamples 8x)")
+        if len(self.view_mode_probs) != len(VIEW_MODES) or abs(sum(self.view_mode_probs) - 1) > 1e-6:
+            raise ValueError(f"view_mode_probs={self.view_mode_probs} must be {len(VIEW_MODES)} probabilities summing to 1")
+
+
+def make_data_env(config: SegmentationDataConfig) -> gym.Env:
+    """The env a data set is rendered from (rgb + segmentation at `image_size`², CPU renderer)."""
+    size = config.image_size
+    return gym.make(
+        "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
+        num_objects=config.num_objects, object_set=config.object_set,
+        sensor_configs=dict(hand_camera=dict(width=size, height=size)),
+    )
+
+
+def sample_camera_position(rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig) -> tuple[np.ndarray, str, np.ndarray]:
+    """A reachable camera (link 7) position (3,), its view mode and its joint positions (7,).
+
+    `object_xy` (K, 2): the objects' floor positions, row 0 the target.
+    """
+    controller = OrbitEEPosControllerConfig  # its workspace bounds (class defaults)
+    mode = VIEW_MODES[rng.choice(len(VIEW_MODES), p=config.view_mode_probs)]
+    for _ in range(200):
+        z = math.exp(rng.uniform(*np.log(config.height_range)))
+        if mode == "anywhere":
+            radius, azimuth = rng.uniform(controller.min_radius, controller.max_radius), rng.uniform(-math.pi, math.pi)
+        else:
+            k = 0 if mode == "target" else rng.integers(1, len(object_xy)) if len(object_xy) > 1 else 0
+            aim = object_xy[k] + rng.normal(0, config.aim_jitter * z, size=2)
+            # The optical axis, pitched down by CAMERA_PITCH, meets the floor z / tan(pitch) in front of the camera.
+            radius = np.linalg.norm(aim) - z / math.tan(CAMERA_PITCH)
+            azimuth = math.atan2(aim[1], aim[0])
+        pos = np.array([radius * math.cos(azimuth), radius * math.sin(azimuth), z])
+        qpos, ok = solve_ik(torch.tensor(pos[None], dtype=torch.float32), CAMERA_PITCH)
+        reachable = (
+            bool(ok[0]) and controller.min_radius <= radius <= controller.max_radius
+            and float(qpos[0, 3]) <= controller.max_elbow
+        )
+        if reachable:
+            return pos, mode, qpos[0].numpy()
+    raise RuntimeError(f"no reachable camera pose found for mode {mode!r} near objects {object_xy.tolist()}")
+
+
+def render_scene_views(env: gym.Env, scene_seed: int, rng: np.random.Generator, config: SegmentationDataConfig) -> dict[str, np.ndarray]:
+    """Reset `env` with `scene_seed` and render `views_per_scene` samples from poses drawn with `rng`.
+
+    The arm is left where the last view put it, off the controller's target: reset `env` before stepping it."""
+    obs, _ = env.reset(seed=scene_seed)
+    base = env.unwrapped
+    target_image = obs["extra"]["target_image"][0].cpu().numpy()
+    object_xy = np.stack([obj.pose.p[0, :2].cpu().numpy() for obj in base.objects])
+    target_id = base.target_seg_id[0]
+    scenes, masks, modes = [], [], []
+    for _ in range(config.views_per_scene):
+        _, mode, qpos = sample_camera_position(rng, object_xy, config)
+        base.agent.robot.set_qpos(torch.as_tensor(qpos)[None])
+        base._hand_images = None  # the task caches one render per step; this is a new view
+        images = base._hand_camera_images()
+        scenes.append(images["rgb"][0].cpu().numpy())
+        masks.append((images["segmentation"][0, ..., 0] == target_id).cpu().numpy())
+        modes.append(VIEW_MODES.index(mode))
+    n = config.views_per_scene
+    return dict(
+        scene=np.stack(scenes), target=np.repeat(target_image[None], n, 0), mask=np.stack(masks),
+        scene_seed=np.full(n, scene_seed, dtype=np.int64), view_mode=np.array(modes, dtype=np.int8),
+    )
+
+
+def collect_segmentation_data(out_dir: str, config: SegmentationDataConfig, scenes_per_shard: int = 50, progress: bool = True) -> dict:
+    """Render a data set into `out_dir` (shards + manifest.json); returns the manifest."""
+    os.makedirs(out_dir, exist_ok=True)
+    env = make_data_env(config)
+    start = time.time()
+    shards, buffer, num_samples, num_with_target, target_pixels = [], [], 0, 0, 0
+    try:
+        for k in tqdm(range(config.num_scenes), desc=f"render {config.object_set}", disable=not progress):
+            rng = np.random.default_rng([config.seed, k])
+            buffer.append(render_scene_views(env, config.seed + k, rng, config))
+            if len(buffer) == scenes_per_shard or k == config.num_scenes - 1:
+                shard = {key: np.concatenate([b[key] for b in buffer]) for key in buffer[0]}
+                name = f"shard_{len(shards):05d}.npz"
+                np.savez_compressed(os.path.join(out_dir, name), **shard)
+                shards.append(dict(file=name, num_samples=len(shard["mask"])))
+                num_samples += len(shard["mask"])
+                num_with_target += int(shard["mask"].any((1, 2)).sum())
+                target_pixels += int(shard["mask"].sum())
+                buffer = []
+    finally:
+        env.close()
+    manifest = dict(
+        config=asdict(config), shards=shards, num_samples=num_samples,
+        share_with_target=num_with_target / max(num_samples, 1),
+        target_pixel_share=target_pixels / max(num_samples * config.image_size**2, 1),
+        seconds=round(time.time() - start, 1),
+    )
+    with open(os.path.join(out_dir, "manifest.json"), "w") as f:
+        json.dump(manifest, f, indent=2)
+    return manifest
+
+
+def load_segmentation_data(data_dir: str) -> dict[str, np.ndarray]:
+    """All shards of a data set written by `collect_segmentation_data`, concatenated."""
+    path = os.path.join(data_dir, "manifest.json")
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no manifest.json in {data_dir!r}: make the data set with baselines/collect_segmentation_data.py")
+    with open(path) as f:
+        manifest = json.load(f)
+    parts = [dict(np.load(os.path.join(data_dir, shard["file"]))) for shard in manifest["shards"]]
+    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
