@@ -20,6 +20,7 @@ class BoxState(gym.ObservationWrapper):
     `with_ee_pos`, the camera's commanded position (x, y, z in m) is appended (the paper's "link state").
 
     Batched ManiSkill envs give a torch tensor (N, 4 or 7); a numpy env (`CPUGymWrapper`) gives (4 or 7,).
+    After each observation, `last_mask` is the (N, H, W) bool torch mask the box came from.
     """
 
     def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False):
@@ -35,6 +36,7 @@ class BoxState(gym.ObservationWrapper):
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
         shape = (dim,) if self._numpy else (env.unwrapped.num_envs, dim)
         self.observation_space = gym.spaces.Box(-2.0, 2.0, shape=shape, dtype=np.float32)
+        self.last_mask = None
 
     def observation(self, obs):
         seg = torch.as_tensor(obs["sensor_data"]["hand_camera"]["segmentation"])
@@ -42,6 +44,7 @@ class BoxState(gym.ObservationWrapper):
             seg = seg[None]
         base = self.env.unwrapped
         mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]
+        self.last_mask = mask
         state = mask_to_box(mask)
         if self.with_ee_pos:
             state = torch.cat([state, base.agent.controller.target_pos.to(state.device)], -1)
