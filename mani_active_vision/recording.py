@@ -20,6 +20,8 @@ context manager or with try/finally) writes the file's footer, so an interrupted
 from __future__ import annotations
 
 import os
+import socket
+import sys
 import time
 import uuid
 
@@ -36,7 +38,7 @@ IMAGE_FORMATS = ("jpeg", "raw")
 TARGET_COLOR = (230, 40, 40)
 DISTRACTOR_COLORS = [(40, 120, 230), (40, 190, 90), (230, 170, 30), (170, 60, 210), (30, 200, 200), (240, 110, 180), (140, 140, 40)]
 ROBOT_COLOR = (150, 150, 150)
-GROUND_COLOR = (70, 60, 50)
+GROUND_COLOR = (0, 0, 0, 0)  # transparent: the overlay highlights objects and the robot, not the floor
 MASK_COLOR = (255, 220, 0)
 
 
@@ -102,6 +104,7 @@ class RerunRecorder(gym.Wrapper):
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
         self.stream.save(self.path, default_blueprint=blueprint(self.num_envs))
         self.mask_source = None
+        self._mask_context_logged = False
         self.step_count = -1  # the global `step` timeline: one tick per observation
         self.episode = -1
         self.log_seconds = 0.0  # time spent logging, for the overhead figure
@@ -202,7 +205,7 @@ class RerunRecorder(gym.Wrapper):
             image = rr.Image(rgb[i])
             self.stream.log(f"{cam}/image/rgb", image.compress(jpeg_quality=self.jpeg_quality) if self.image_format == "jpeg" else image)
             if segmentation is not None:
-                self.stream.log(f"{cam}/image/segmentation", rr.SegmentationImage(segmentation[i].astype(np.uint16), opacity=0.5))
+                self.stream.log(f"{cam}/image/segmentation", rr.SegmentationImage(segmentation[i].astype(np.uint8 if segmentation.max() < 256 else np.uint16), opacity=0.5))
             if boxes is not None:
                 self.stream.log(f"{cam}/image/ground_truth_box", _box(boxes[i], width, height, "ground truth", TARGET_COLOR))
             path = self._episodes[i]["path"]
@@ -272,9 +275,11 @@ class RerunRecorder(gym.Wrapper):
         self.stream.set_time("episode", sequence=episode)
         for i in range(self.num_envs):
             entity = f"world/env{i}/camera/image/{source}_mask"
-            self.stream.log(entity, rr.AnnotationContext([(0, "background", (0, 0, 0, 0)), (1, f"{source} mask", MASK_COLOR)]))
+            if not self._mask_context_logged:
+                self.stream.log(entity, rr.AnnotationContext([(0, "background", (0, 0, 0, 0)), (1, f"{source} mask", MASK_COLOR)]), static=True)
             self.stream.log(entity, rr.SegmentationImage(mask[i].astype(np.uint8), opacity=0.4))
             self.stream.log(f"world/env{i}/camera/image/{source}_box", _box(boxes[i], width, height, f"{source} box", MASK_COLOR))
+        self._mask_context_logged = True
         self.stream.set_time("step", sequence=self.step_count)
         self.stream.set_time("episode", sequence=self.episode)
         self.log_seconds += time.perf_counter() - start
@@ -300,6 +305,54 @@ def record_rollouts(env: gym.Env, policy, episodes: int, seed: int = 0, progress
         for i, success in enumerate(_numpy(info["success"]).reshape(-1)):
             results.append(dict(episode=episode, env=i, steps=steps, ret=float(ret[i]), success=bool(success)))
     return results
+
+
+def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60.0) -> list[str]:
+    """Render the recording at `path` in a headless native viewer (software Vulkan is enough), with its
+    stored blueprint, paused at each global `step`, to `out_dir/<name>_step<k>.png`; returns the PNG paths.
+
+    Uses `rerun.experimental.ViewerClient` (rerun-sdk 0.41): spawn `rerun --headless`, open the file,
+    wait until it is loaded, then move the time cursor and save a screenshot per step."""
+    from rerun.experimental import ViewerClient
+
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"no recording at {path!r}")
+    os.makedirs(out_dir, exist_ok=True)
+    with socket.socket() as probe:  # a free port, so that several viewers (or a user's own) can coexist
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    executable = os.path.join(os.path.dirname(sys.executable), "rerun")
+    viewer = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True,
+                                executable_path=executable if os.path.exists(executable) else None)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                viewer.get_state()
+                break
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        viewer.open(os.path.abspath(path))
+        while viewer.get_state().loading:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the viewer did not finish loading {path!r} in {timeout_s} s")
+            time.sleep(0.5)
+        last = viewer.get_state().recordings[0].timelines
+        end = next((t.end for t in last if t.name == "step"), None)
+        written = []
+        name = os.path.splitext(os.path.basename(path))[0]
+        for step in steps:
+            if end is not None and not 0 <= step <= end:
+                raise ValueError(f"step={step} is outside the recording's steps 0..{end}")
+            viewer.set_time("step", sequence=int(step), play_state="paused")
+            png = os.path.abspath(os.path.join(out_dir, f"{name}_step{step}.png"))
+            viewer.save_screenshot(png)
+            written.append(png)
+        return written
+    finally:
+        viewer.quit()
 
 
 # ---------------------------------------------------------------------- helpers
