@@ -207,7 +207,7 @@ class RerunRecorder(gym.Wrapper):
             if segmentation is not None:
                 self.stream.log(f"{cam}/image/segmentation", rr.SegmentationImage(segmentation[i].astype(np.uint8 if segmentation.max() < 256 else np.uint16), opacity=0.5))
             if boxes is not None:
-                self.stream.log(f"{cam}/image/ground_truth_box", _box(boxes[i], width, height, "ground truth", TARGET_COLOR))
+                self.stream.log(f"{cam}/image/target_box", _box(boxes[i], width, height, "ground truth", TARGET_COLOR))
             path = self._episodes[i]["path"]
             if not self._episodes[i]["done"]:
                 path.append(centre)
@@ -278,7 +278,7 @@ class RerunRecorder(gym.Wrapper):
             if not self._mask_context_logged:
                 self.stream.log(entity, rr.AnnotationContext([(0, "background", (0, 0, 0, 0)), (1, f"{source} mask", MASK_COLOR)]), static=True)
             self.stream.log(entity, rr.SegmentationImage(mask[i].astype(np.uint8), opacity=0.4))
-            self.stream.log(f"world/env{i}/camera/image/{source}_box", _box(boxes[i], width, height, f"{source} box", MASK_COLOR))
+            self.stream.log(f"world/env{i}/camera/image/{source}_mask_box", _box(boxes[i], width, height, f"{source} box", MASK_COLOR))
         self._mask_context_logged = True
         self.stream.set_time("step", sequence=self.step_count)
         self.stream.set_time("episode", sequence=self.episode)
