@@ -81,17 +81,11 @@ def check_writable(path: str) -> None:
         raise OSError(f"cannot write the recording to {path!r}: {e.strerror or e}") from e
 
 
-class RerunRecorder(gym.Wrapper):
-    """Log every `reset` and `step` that passes through to a Rerun file (see the module docstring).
+class _Recording:
+    """The logging shared by `RerunRecorder` (one ManiSkill env, batched or not) and
+    `RerunVectorRecorder` (a gymnasium vector env); they call `_setup`, then the `_log_*` methods."""
 
-    path: the `.rrd` file (its folder is created; an unwritable path fails here, before any rollout).
-    image_format: "jpeg" (default, ~10x smaller) or "raw" for the wrist RGB.
-    jpeg_quality: 1-100.
-    """
-
-    def __init__(self, env: gym.Env, path: str, image_format: str = "jpeg", jpeg_quality: int = 90,
-                 application_id: str = "mani_active_vision"):
-        super().__init__(env)
+    def _setup(self, path, num_envs, image_format, jpeg_quality, application_id):
         if image_format not in IMAGE_FORMATS:
             raise ValueError(f"image_format={image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}")
         if not 1 <= int(jpeg_quality) <= 100:
@@ -100,61 +94,23 @@ class RerunRecorder(gym.Wrapper):
         self.path = str(path)
         self.image_format = image_format
         self.jpeg_quality = int(jpeg_quality)
-        self.num_envs = getattr(env.unwrapped, "num_envs", 1)
+        self.num_envs = int(num_envs)
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
         self.stream.save(self.path, default_blueprint=blueprint(self.num_envs))
         self.mask_source = None
-        self._mask_context_logged = False
         self.step_count = -1  # the global `step` timeline: one tick per observation
-        self.episode = -1
+        self.episode = np.full(self.num_envs, -1)  # the `episode` timeline, per env
         self.log_seconds = 0.0  # time spent logging, for the overhead figure
         self.env_seconds = 0.0  # time spent in the wrapped env's step
         self.env_steps = 0
-        self._pending_mask_time = None
-        self._episodes = None  # per env: dict(return, steps, first_success, path points, done)
+        self._episodes = [None] * self.num_envs  # per env: return, steps, first success, path, done
+        self._pending_mask = None
+        self._mask_context_logged = False
         self._closed = False
 
     def show_masks_of(self, box_state) -> None:
         """Also log the mask a `BoxState` wrapped around this recorder computed its box from (`last_mask`)."""
         self.mask_source = box_state
-
-    # ------------------------------------------------------------------ gym interface
-    def reset(self, **kwargs):
-        self._log_pending_mask()
-        self._finish_episodes("reset")
-        obs, info = self.env.reset(**kwargs)
-        start = time.perf_counter()
-        self.episode += 1
-        self._tick()
-        self._log_episode_start(obs)
-        self._log_observation(obs, info)
-        self.log_seconds += time.perf_counter() - start
-        return obs, info
-
-    def step(self, action):
-        self._log_pending_mask()
-        start = time.perf_counter()
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        stepped = time.perf_counter()
-        self.env_seconds += stepped - start
-        self.env_steps += 1
-        self._tick()
-        self._log_step(action, reward, terminated, truncated, info)
-        self._log_observation(obs, info)
-        self.log_seconds += time.perf_counter() - stepped
-        return obs, reward, terminated, truncated, info
-
-    def close(self):
-        """Write what is pending and the file's footer, then close the env. Safe to call twice."""
-        if not self._closed:
-            self._closed = True
-            try:
-                self._log_pending_mask()
-                self._finish_episodes("interrupted")
-            finally:
-                self.stream.flush()
-                self.stream.disconnect()  # drops the file sink: writes the footer
-        super().close()
 
     def overhead(self) -> dict:
         """Logging time per step (ms) and as a share of the wrapped env's step time."""
@@ -163,23 +119,39 @@ class RerunRecorder(gym.Wrapper):
                     env_ms_per_step=1e3 * self.env_seconds / steps,
                     log_share_of_env_step=self.log_seconds / max(self.env_seconds, 1e-9))
 
-    # ------------------------------------------------------------------ logging
-    def _tick(self):
-        self.step_count += 1
-        self.stream.set_time("step", sequence=self.step_count)
-        self.stream.set_time("episode", sequence=self.episode)
+    def _close_file(self):
+        """Write what is pending and the file's footer. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._log_pending_mask()
+            self._finish_episodes("interrupted")
+        finally:
+            self.stream.flush()
+            self.stream.disconnect()  # drops the file sink: writes the footer
 
-    def _log_episode_start(self, obs):
-        """Per env: the objects' names as segmentation classes, their positions, the camera's intrinsics
-        and the target image."""
-        self._episodes = [dict(ret=0.0, steps=0, first_success=None, path=[], done=False) for _ in range(self.num_envs)]
-        base = self.env.unwrapped
+    def _scene(self, i: int):
+        """(segmentation classes, object positions, labels, colours) of env i; see `_scene_classes`."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ logging
+    def _at(self, i: int):
+        self.stream.set_time("step", sequence=self.step_count)
+        self.stream.set_time("episode", sequence=int(self.episode[i]))
+
+    def _log_episode_start(self, obs, env_ids):
+        """Per env starting an episode: the objects' names as segmentation classes, their positions, the
+        camera's intrinsics and the target image."""
         params = obs["sensor_param"]["hand_camera"]
         intrinsics = _numpy(params["intrinsic_cv"])
         height, width = obs["sensor_data"]["hand_camera"]["rgb"].shape[-3:-1]
         target_images = _numpy(obs["extra"]["target_image"]) if "target_image" in obs.get("extra", {}) else None
-        for i in range(self.num_envs):
-            classes, positions, labels, colors = _scene_classes(base, i)
+        for i in env_ids:
+            self.episode[i] += 1
+            self._episodes[i] = dict(ret=0.0, steps=0, first_success=None, path=[], done=False)
+            self._at(i)
+            classes, positions, labels, colors = self._scene(i)
             self.stream.log(f"world/env{i}", rr.AnnotationContext(classes))
             if positions is not None:
                 self.stream.log(f"world/env{i}/objects", rr.Points3D(positions, labels=labels, colors=colors, radii=0.03))
@@ -188,7 +160,7 @@ class RerunRecorder(gym.Wrapper):
                 image_plane_distance=0.15))
             if target_images is not None:
                 self.stream.log(f"env{i}/target_image", rr.Image(target_images[i]))
-            self.stream.log(f"env{i}/outcome", rr.TextLog(f"episode {self.episode} starts", level="INFO"))
+            self.stream.log(f"env{i}/outcome", rr.TextLog(f"episode {self.episode[i]} starts", level="INFO"))
 
     def _log_observation(self, obs, info):
         camera = obs["sensor_data"]["hand_camera"]
@@ -198,6 +170,7 @@ class RerunRecorder(gym.Wrapper):
         boxes = _numpy(info["target_bbox"]) if "target_bbox" in info else None
         height, width = rgb.shape[1:3]
         for i in range(self.num_envs):
+            self._at(i)
             cam = f"world/env{i}/camera"
             rotation = extrinsics[i, :, :3].T  # world-from-camera (OpenCV axes: right, down, forward)
             centre = -rotation @ extrinsics[i, :, 3]
@@ -205,7 +178,8 @@ class RerunRecorder(gym.Wrapper):
             image = rr.Image(rgb[i])
             self.stream.log(f"{cam}/image/rgb", image.compress(jpeg_quality=self.jpeg_quality) if self.image_format == "jpeg" else image)
             if segmentation is not None:
-                self.stream.log(f"{cam}/image/segmentation", rr.SegmentationImage(segmentation[i].astype(np.uint8 if segmentation.max() < 256 else np.uint16), opacity=0.5))
+                ids = segmentation[i].astype(np.uint8 if segmentation.max() < 256 else np.uint16)
+                self.stream.log(f"{cam}/image/segmentation", rr.SegmentationImage(ids, opacity=0.5))
             if boxes is not None:
                 self.stream.log(f"{cam}/image/target_box", _box(boxes[i], width, height, "ground truth", TARGET_COLOR))
             path = self._episodes[i]["path"]
@@ -213,19 +187,21 @@ class RerunRecorder(gym.Wrapper):
                 path.append(centre)
             self.stream.log(f"world/env{i}/ee_path", rr.LineStrips3D([np.array(path)], colors=[(255, 160, 0)], radii=0.004))
         if self.mask_source is not None:
-            self._pending_mask_time = (self.step_count, self.episode, width, height)
+            self._pending_mask = (self.step_count, self.episode.copy(), width, height)
 
-    def _log_step(self, action, reward, terminated, truncated, info):
+    def _log_step(self, action, reward, terminated, truncated, info, env_ids):
+        """The transition of each env in env_ids (the others' observations start a new episode)."""
         actions = _numpy(action).reshape(self.num_envs, -1)
         reward = _numpy(reward).reshape(self.num_envs)
         success = _numpy(info["success"]).reshape(self.num_envs)
         fraction = _numpy(info["target_fraction"]).reshape(self.num_envs) if "target_fraction" in info else None
         refused = _numpy(info["refused"]).reshape(self.num_envs) if "refused" in info else np.zeros(self.num_envs, bool)
         done = _numpy(terminated).reshape(self.num_envs) | _numpy(truncated).reshape(self.num_envs)
-        for i in range(self.num_envs):
+        for i in env_ids:
             episode = self._episodes[i]
             if episode["done"]:  # ManiSkill keeps stepping finished envs of a batch until the next reset
                 continue
+            self._at(i)
             episode["steps"] += 1
             episode["ret"] += float(reward[i])
             if success[i] and episode["first_success"] is None:
@@ -238,31 +214,31 @@ class RerunRecorder(gym.Wrapper):
                 self.stream.log(f"env{i}/target_fraction", rr.Scalars(float(fraction[i])))
             if done[i]:
                 self._log_outcome(i, bool(success[i]), fraction[i] if fraction is not None else None, "ended")
+        return done
 
     def _log_outcome(self, i, success_now, fraction, how):
         episode = self._episodes[i]
         episode["done"] = True
         first = episode["first_success"]
-        text = (f"episode {self.episode} {how} after {episode['steps']} steps: "
+        text = (f"episode {self.episode[i]} {how} after {episode['steps']} steps: "
                 f"{'success' if success_now else 'no success'} at the end, "
                 f"{'first success at step ' + str(first) if first else 'never successful'}, return {episode['ret']:.3f}"
                 + (f", final target share {float(fraction):.3f}" if fraction is not None else ""))
         self.stream.log(f"env{i}/outcome", rr.TextLog(text, level="INFO" if success_now else "WARN"))
 
     def _finish_episodes(self, how):
-        if self._episodes is None:
-            return
         for i, episode in enumerate(self._episodes):
-            if not episode["done"]:
+            if episode is not None and not episode["done"]:
+                self._at(i)
                 self._log_outcome(i, False, None, how)
 
     def _log_pending_mask(self):
         """The mask of the last observation: a `BoxState` outside this recorder computes it after the
         observation has passed through here, so it is logged (at that observation's time) on the next call."""
-        if self._pending_mask_time is None:
+        if self._pending_mask is None:
             return
-        step, episode, width, height = self._pending_mask_time
-        self._pending_mask_time = None
+        step, episodes, width, height = self._pending_mask
+        self._pending_mask = None
         mask = getattr(self.mask_source, "last_mask", None)
         if mask is None:
             return
@@ -272,17 +248,127 @@ class RerunRecorder(gym.Wrapper):
         mask = mask.numpy()
         source = getattr(self.mask_source, "source", "box_state")
         self.stream.set_time("step", sequence=step)
-        self.stream.set_time("episode", sequence=episode)
         for i in range(self.num_envs):
+            self.stream.set_time("episode", sequence=int(episodes[i]))
             entity = f"world/env{i}/camera/image/{source}_mask"
             if not self._mask_context_logged:
                 self.stream.log(entity, rr.AnnotationContext([(0, "background", (0, 0, 0, 0)), (1, f"{source} mask", MASK_COLOR)]), static=True)
             self.stream.log(entity, rr.SegmentationImage(mask[i].astype(np.uint8), opacity=0.4))
-            self.stream.log(f"world/env{i}/camera/image/{source}_mask_box", _box(boxes[i], width, height, f"{source} box", MASK_COLOR))
+            self.stream.log(f"{entity}_box", _box(boxes[i], width, height, f"{source} box", MASK_COLOR))
         self._mask_context_logged = True
-        self.stream.set_time("step", sequence=self.step_count)
-        self.stream.set_time("episode", sequence=self.episode)
         self.log_seconds += time.perf_counter() - start
+
+
+class RerunRecorder(_Recording, gym.Wrapper):
+    """Log every `reset` and `step` of a ManiSkill env (batched or not, possibly wrapped, e.g. in
+    `DiscreteDirections`) to a Rerun file; see the module docstring.
+
+    path: the `.rrd` file (its folder is created; an unwritable path fails here, before any rollout).
+    image_format: "jpeg" (default, ~10x smaller) or "raw" for the wrist RGB.
+    jpeg_quality: 1-100.
+    """
+
+    def __init__(self, env: gym.Env, path: str, image_format: str = "jpeg", jpeg_quality: int = 90,
+                 application_id: str = "mani_active_vision"):
+        gym.Wrapper.__init__(self, env)
+        self._setup(path, env.unwrapped.num_envs, image_format, jpeg_quality, application_id)
+
+    def reset(self, **kwargs):
+        self._log_pending_mask()
+        self._finish_episodes("reset")
+        obs, info = self.env.reset(**kwargs)
+        start = time.perf_counter()
+        self.step_count += 1
+        self._log_episode_start(obs, range(self.num_envs))
+        self._log_observation(obs, info)
+        self.log_seconds += time.perf_counter() - start
+        return obs, info
+
+    def step(self, action):
+        self._log_pending_mask()
+        start = time.perf_counter()
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        stepped = time.perf_counter()
+        self.env_seconds += stepped - start
+        self.env_steps += 1
+        self.step_count += 1
+        self._log_step(action, reward, terminated, truncated, info, range(self.num_envs))
+        self._log_observation(obs, info)
+        self.log_seconds += time.perf_counter() - stepped
+        return obs, reward, terminated, truncated, info
+
+    def close(self):
+        """Write what is pending and the file's footer, then close the env. Safe to call twice."""
+        try:
+            self._close_file()
+        finally:
+            gym.Wrapper.close(self)
+
+    def _scene(self, i):
+        return _scene_classes(self.env.unwrapped, i)
+
+
+class RerunVectorRecorder(_Recording, gym.vector.VectorWrapper):
+    """The same recording for a gymnasium vector env whose sub-envs return ManiSkill's observation dict
+    (e.g. `AsyncVectorEnv` of `CPUGymWrapper` envs): obs and info come stacked (N, ...) as numpy. Sub-envs
+    reset automatically in gymnasium's default NEXT_STEP mode: the step after an episode's end brings the
+    next episode's first observation, which starts that env's next `episode` here. Segmentation classes
+    name only the target (the other objects' ids stay in the sub-env processes); no object positions."""
+
+    def __init__(self, env: gym.vector.VectorEnv, path: str, image_format: str = "jpeg", jpeg_quality: int = 90,
+                 application_id: str = "mani_active_vision"):
+        gym.vector.VectorWrapper.__init__(self, env)
+        mode = env.metadata.get("autoreset_mode", gym.vector.AutoresetMode.NEXT_STEP)
+        if mode != gym.vector.AutoresetMode.NEXT_STEP:
+            raise ValueError(f"autoreset_mode={mode!r} is not supported; use {gym.vector.AutoresetMode.NEXT_STEP!r}")
+        self._setup(path, env.num_envs, image_format, jpeg_quality, application_id)
+        self._restarting = np.zeros(self.num_envs, bool)
+        self._names = self._target_ids = None
+
+    def reset(self, **kwargs):
+        self._log_pending_mask()
+        self._finish_episodes("reset")
+        obs, info = self.env.reset(**kwargs)
+        start = time.perf_counter()
+        self.step_count += 1
+        self._names = self._target_ids = None
+        self._log_episode_start(obs, range(self.num_envs))
+        self._log_observation(obs, info)
+        self._restarting[:] = False
+        self.log_seconds += time.perf_counter() - start
+        return obs, info
+
+    def step(self, actions):
+        self._log_pending_mask()
+        start = time.perf_counter()
+        obs, reward, terminated, truncated, info = self.env.step(actions)
+        stepped = time.perf_counter()
+        self.env_seconds += stepped - start
+        self.env_steps += 1
+        self.step_count += 1
+        restarted = np.flatnonzero(self._restarting)
+        self._names = self._target_ids = None
+        if len(restarted):
+            self._log_episode_start(obs, restarted)
+        done = self._log_step(actions, reward, terminated, truncated, info, np.flatnonzero(~self._restarting))
+        self._restarting = done & ~self._restarting
+        self._log_observation(obs, info)
+        self.log_seconds += time.perf_counter() - stepped
+        return obs, reward, terminated, truncated, info
+
+    def close(self, **kwargs):
+        try:
+            self._close_file()
+        finally:
+            gym.vector.VectorWrapper.close(self, **kwargs)
+
+    def _scene(self, i):
+        if self._names is None:  # one round trip to the sub-envs per batch of episode starts
+            self._names = self.env.get_attr("object_names")
+            self._target_ids = self.env.get_attr("target_seg_id")
+        classes = [(0, "background", (0, 0, 0, 0)),
+                   (int(_numpy(self._target_ids[i]).reshape(-1)[0]), f"target: {self._names[i][0][0]}", TARGET_COLOR)]
+        return classes, None, None, None
 
 
 def record_rollouts(env: gym.Env, policy, episodes: int, seed: int = 0, progress: bool = True) -> list[dict]:
