@@ -85,7 +85,8 @@ class _Recording:
     """The logging shared by `RerunRecorder` (one ManiSkill env, batched or not) and
     `RerunVectorRecorder` (a gymnasium vector env); they call `_setup`, then the `_log_*` methods."""
 
-    def _setup(self, path, num_envs, image_format, jpeg_quality, application_id):
+    def _setup(self, path, image_format, jpeg_quality, application_id):
+        """Needs `self.num_envs`."""
         if image_format not in IMAGE_FORMATS:
             raise ValueError(f"image_format={image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}")
         if not 1 <= int(jpeg_quality) <= 100:
@@ -94,7 +95,6 @@ class _Recording:
         self.path = str(path)
         self.image_format = image_format
         self.jpeg_quality = int(jpeg_quality)
-        self.num_envs = int(num_envs)
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
         self.stream.save(self.path, default_blueprint=blueprint(self.num_envs))
         self.mask_source = None
@@ -118,6 +118,13 @@ class _Recording:
         return dict(steps=self.env_steps, log_ms_per_step=1e3 * self.log_seconds / steps,
                     env_ms_per_step=1e3 * self.env_seconds / steps,
                     log_share_of_env_step=self.log_seconds / max(self.env_seconds, 1e-9))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        self.close()  # also on an exception or Ctrl-C: the file gets its footer
+        return False
 
     def _close_file(self):
         """Write what is pending and the file's footer. Safe to call twice."""
@@ -271,7 +278,8 @@ class RerunRecorder(_Recording, gym.Wrapper):
     def __init__(self, env: gym.Env, path: str, image_format: str = "jpeg", jpeg_quality: int = 90,
                  application_id: str = "mani_active_vision"):
         gym.Wrapper.__init__(self, env)
-        self._setup(path, env.unwrapped.num_envs, image_format, jpeg_quality, application_id)
+        self.num_envs = env.unwrapped.num_envs
+        self._setup(path, image_format, jpeg_quality, application_id)
 
     def reset(self, **kwargs):
         self._log_pending_mask()
@@ -321,7 +329,7 @@ class RerunVectorRecorder(_Recording, gym.vector.VectorWrapper):
         mode = env.metadata.get("autoreset_mode", gym.vector.AutoresetMode.NEXT_STEP)
         if mode != gym.vector.AutoresetMode.NEXT_STEP:
             raise ValueError(f"autoreset_mode={mode!r} is not supported; use {gym.vector.AutoresetMode.NEXT_STEP!r}")
-        self._setup(path, env.num_envs, image_format, jpeg_quality, application_id)
+        self._setup(path, image_format, jpeg_quality, application_id)
         self._restarting = np.zeros(self.num_envs, bool)
         self._names = self._target_ids = None
 

@@ -17,7 +17,7 @@ import torch
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.recording import RerunRecorder, blueprint, screenshots
+from mani_active_vision.recording import RerunRecorder, RerunVectorRecorder, blueprint, screenshots
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -172,6 +172,32 @@ def test_unwritable_path_fails_before_the_rollout(tmp_path):
             RerunRecorder(env, str(tmp_path / "x.rrd"), image_format="png")
     finally:
         env.close()
+
+
+def test_vector_env_with_autoreset_is_recorded_per_env(tmp_path):
+    """A gymnasium vector env (in-process here; AsyncVectorEnv takes the same path) of two 4-step
+    episodes: the step after an episode's end brings the next episode's first observation."""
+    from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
+
+    def make():
+        return CPUGymWrapper(mav.DiscreteDirections(gym.make(
+            "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
+            max_episode_steps=4, sensor_configs=dict(hand_camera=dict(width=64, height=64)))))
+
+    path = tmp_path / "vector.rrd"
+    with RerunVectorRecorder(gym.vector.SyncVectorEnv([make, make]), str(path)) as env:
+        env.reset(seed=0)
+        for t in range(7):
+            env.step(np.array([t % 6, (t + 1) % 6]))
+    verify(path)
+    rows = temporal_rows(path)
+    for i in range(2):
+        assert rows[f"world/env{i}/camera/image/rgb"] == 8
+        assert rows[f"env{i}/target_image"] == 2  # the autoreset started a second episode
+        assert sorted(column_by_step(path, f"env{i}/action", "TextLog:text")) == [1, 2, 3, 4, 6, 7]  # step 5 is a reset
+        episodes = column_by_step(path, f"world/env{i}/camera/image/rgb", "episode")
+        assert [episodes[step] for step in range(8)] == [0, 0, 0, 0, 0, 1, 1, 1]
+        assert rows[f"env{i}/outcome"] == 4  # two starts, one end, one interrupted
 
 
 def test_blueprint_has_one_tab_per_env():
