@@ -72,7 +72,7 @@ def main(args: Args):
     cost = recorder.overhead()
     size = os.path.getsize(args.out)
     print(f"logging {cost['log_ms_per_step']:.1f} ms/step = {100 * cost['log_share_of_env_step']:.0f}% of an env step "
-          f"({cost['env_ms_per_step']:.1f} ms); file {size / 1e6:.2f} MB = {size / 1e6 / cost['steps'] * 100:.2f} MB per 100 steps")
+          f"({cost['env_ms_per_step']:.1f} ms), resets {cost['reset_log_seconds']:.2f} s in all; file {size / 1e6:.2f} MB = {size / 1e6 / cost['steps'] * 100:.2f} MB per 100 steps")
     print(f"wrote {args.out}\nopen it:        {os.path.join('.venv', 'bin', 'rerun')} {args.out}"
           f"\nscreenshots:    python baselines/screenshots.py {args.out} --steps 20 60")
 

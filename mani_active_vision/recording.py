@@ -4,6 +4,8 @@
 `DiscreteDirections(gym.make(...))`, so that it sees direction indices and ManiSkill's observation dict),
 and everything that passes through `reset` and `step` is logged, whatever the policy. Observations and
 `info` are batch-first (N, ...): every env of a batched ManiSkill env is logged under its own `env{i}`.
+`RerunVectorRecorder` does the same for a gymnasium vector env (e.g. `AsyncVectorEnv` of `CPUGymWrapper`
+envs, with their automatic resets). `screenshots()` renders a file to PNGs in a headless viewer.
 
 Per step: the wrist camera's RGB (JPEG by default), its ground-truth segmentation with the objects named
 (an `AnnotationContext`), the ground-truth box, the action's name, reward, target share, success, the
@@ -100,7 +102,8 @@ class _Recording:
         self.mask_source = None
         self.step_count = -1  # the global `step` timeline: one tick per observation
         self.episode = np.full(self.num_envs, -1)  # the `episode` timeline, per env
-        self.log_seconds = 0.0  # time spent logging, for the overhead figure
+        self.log_seconds = 0.0  # time spent logging steps, for the overhead figure
+        self.reset_log_seconds = 0.0  # logging at resets (the first one pays rerun's one-off start-up)
         self.env_seconds = 0.0  # time spent in the wrapped env's step
         self.env_steps = 0
         self._episodes = [None] * self.num_envs  # per env: return, steps, first success, path, done
@@ -113,9 +116,10 @@ class _Recording:
         self.mask_source = box_state
 
     def overhead(self) -> dict:
-        """Logging time per step (ms) and as a share of the wrapped env's step time."""
+        """Logging time per step (ms) and as a share of the wrapped env's step time; resets apart."""
         steps = max(self.env_steps, 1)
         return dict(steps=self.env_steps, log_ms_per_step=1e3 * self.log_seconds / steps,
+                    reset_log_seconds=self.reset_log_seconds,
                     env_ms_per_step=1e3 * self.env_seconds / steps,
                     log_share_of_env_step=self.log_seconds / max(self.env_seconds, 1e-9))
 
@@ -289,7 +293,7 @@ class RerunRecorder(_Recording, gym.Wrapper):
         self.step_count += 1
         self._log_episode_start(obs, range(self.num_envs))
         self._log_observation(obs, info)
-        self.log_seconds += time.perf_counter() - start
+        self.reset_log_seconds += time.perf_counter() - start
         return obs, info
 
     def step(self, action):
@@ -343,7 +347,7 @@ class RerunVectorRecorder(_Recording, gym.vector.VectorWrapper):
         self._log_episode_start(obs, range(self.num_envs))
         self._log_observation(obs, info)
         self._restarting[:] = False
-        self.log_seconds += time.perf_counter() - start
+        self.reset_log_seconds += time.perf_counter() - start
         return obs, info
 
     def step(self, actions):
