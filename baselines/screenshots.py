@@ -14,7 +14,7 @@ from mani_active_vision.recording import screenshots
 
 @dataclass
 class Args:
-    recording: str
+    recording: tyro.conf.Positional[str]
     """the .rrd file"""
     steps: list[int] = field(default_factory=lambda: [20, 60])
     """global `step` values to show (the viewer's time cursor)"""

@@ -405,12 +405,12 @@ def record_rollouts(env: gym.Env, policy, episodes: int, seed: int = 0, progress
     return results
 
 
-def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60.0) -> list[str]:
+def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60.0, settle_tries: int = 20) -> list[str]:
     """Render the recording at `path` in a headless native viewer (software Vulkan is enough), with its
     stored blueprint, paused at each global `step`, to `out_dir/<name>_step<k>.png`; returns the PNG paths.
 
     Uses `rerun.experimental.ViewerClient` (rerun-sdk 0.41): spawn `rerun --headless`, open the file,
-    wait until it is loaded, then move the time cursor and save a screenshot per step."""
+    wait until it is loaded, then move the time cursor and take screenshots until two in a row match."""
     from rerun.experimental import ViewerClient
 
     if not os.path.isfile(path):
@@ -445,8 +445,16 @@ def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60
             if end is not None and not 0 <= step <= end:
                 raise ValueError(f"step={step} is outside the recording's steps 0..{end}")
             viewer.set_time("step", sequence=int(step), play_state="paused")
+            # The viewer fetches chunks on demand after loading the index: shoot until the picture settles.
+            image, previous = viewer.take_screenshot(), None
+            for _ in range(settle_tries):
+                if image == previous:
+                    break
+                time.sleep(0.5)
+                image, previous = viewer.take_screenshot(), image
             png = os.path.abspath(os.path.join(out_dir, f"{name}_step{step}.png"))
-            viewer.save_screenshot(png)
+            with open(png, "wb") as f:
+                f.write(image)
             written.append(png)
         return written
     finally:
@@ -468,6 +476,8 @@ def _action_name(action: np.ndarray) -> str:
 
 def _box(box, width, height, label, color) -> rr.Boxes2D:
     x, y, w, h = (float(v) for v in box)
+    if w <= 0 or h <= 0:  # nothing seen: an empty batch, so the previous box does not linger
+        return rr.Boxes2D(mins=np.zeros((0, 2)), sizes=np.zeros((0, 2)))
     return rr.Boxes2D(mins=[[x * width, y * height]], sizes=[[w * width, h * height]], labels=[label], colors=[color],
                       show_labels=False)
 
