@@ -26,6 +26,7 @@ import socket
 import sys
 import time
 import uuid
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -452,6 +453,9 @@ def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60
                     break
                 time.sleep(0.5)
                 image, previous = viewer.take_screenshot(), image
+            for view in viewer.get_state().views:  # what the viewer could not show, e.g. a missing pinhole
+                for report in view.reports:
+                    warnings.warn(f"step {step}, view {view.name!r}: {report.severity}: {report.summary}")
             png = os.path.abspath(os.path.join(out_dir, f"{name}_step{step}.png"))
             with open(png, "wb") as f:
                 f.write(image)
