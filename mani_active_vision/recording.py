@@ -21,9 +21,12 @@ context manager or with try/finally) writes the file's footer, so an interrupted
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 import uuid
 import warnings
@@ -177,6 +180,9 @@ class _Recording:
     def _log_observation(self, obs, info):
         camera = obs["sensor_data"]["hand_camera"]
         rgb = _numpy(camera["rgb"])
+        if rgb.ndim != 4 or len(rgb) != self.num_envs:
+            raise ValueError(f"the recorder needs batch-first observations (N={self.num_envs}, H, W, 3), got rgb of "
+                             f"shape {rgb.shape}: put RerunRecorder inside CPUGymWrapper, or use RerunVectorRecorder")
         segmentation = _numpy(camera["segmentation"])[..., 0] if "segmentation" in camera else None
         extrinsics = _numpy(obs["sensor_param"]["hand_camera"]["extrinsic_cv"])
         boxes = _numpy(info["target_bbox"]) if "target_bbox" in info else None
@@ -385,25 +391,54 @@ class RerunVectorRecorder(_Recording, gym.vector.VectorWrapper):
 
 
 def record_rollouts(env: gym.Env, policy, episodes: int, seed: int = 0, progress: bool = True) -> list[dict]:
-    """Run `policy` for `episodes` episodes in `env` (which contains a `RerunRecorder`); returns per
-    episode and env: steps, return, success at the end. The recorder logs; this is the plain loop."""
+    """Run `policy` for `episodes` episodes in `env` (which contains a recorder); returns per episode and
+    env: steps, return, success at the end. The recorder logs; this is the plain loop.
+
+    Ctrl-C stops it after the step in progress (raising KeyboardInterrupt), so that the last step is
+    logged whole; a second Ctrl-C interrupts at once."""
     from tqdm import trange
 
+    num_envs = env.unwrapped.num_envs
     results = []
-    for episode in trange(episodes, desc="episodes", disable=not progress):
-        obs, info = env.reset(seed=seed + episode)
-        policy.reset(obs, info)
-        done = np.zeros(env.unwrapped.num_envs, bool)
-        ret = np.zeros(env.unwrapped.num_envs)
-        steps = 0
-        while not done.all():
-            obs, reward, terminated, truncated, info = env.step(policy.act(obs, info))
-            ret += np.where(done, 0.0, _numpy(reward).reshape(-1))
-            done |= (_numpy(terminated) | _numpy(truncated)).reshape(-1)
-            steps += 1
-        for i, success in enumerate(_numpy(info["success"]).reshape(-1)):
-            results.append(dict(episode=episode, env=i, steps=steps, ret=float(ret[i]), success=bool(success)))
+    with _stop_on_ctrl_c() as stop_requested:
+        for episode in trange(episodes, desc="episodes", disable=not progress):
+            obs, info = env.reset(seed=seed + episode)
+            policy.reset(obs, info)
+            done = np.zeros(num_envs, bool)
+            ret = np.zeros(num_envs)
+            steps = 0
+            while not done.all():
+                if stop_requested():
+                    raise KeyboardInterrupt(f"stopped by Ctrl-C in episode {episode} after {steps} steps")
+                obs, reward, terminated, truncated, info = env.step(policy.act(obs, info))
+                ret += np.where(done, 0.0, _numpy(reward).reshape(-1))
+                done |= (_numpy(terminated) | _numpy(truncated)).reshape(-1)
+                steps += 1
+            for i, success in enumerate(_numpy(info["success"]).reshape(-1)):
+                results.append(dict(episode=episode, env=i, steps=steps, ret=float(ret[i]), success=bool(success)))
     return results
+
+
+@contextlib.contextmanager
+def _stop_on_ctrl_c():
+    """Turn the first SIGINT into a request the loop checks between steps. The default KeyboardInterrupt
+    is raised wherever Python happens to be, and one raised inside a `__del__` or a callback is printed
+    and swallowed, so a run could go on after Ctrl-C. Only the main thread can handle signals."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    requested = []
+
+    def handler(signum, frame):
+        if requested:  # the second Ctrl-C: at once
+            raise KeyboardInterrupt
+        requested.append(signum)
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: bool(requested)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60.0, settle_tries: int = 20) -> list[str]:
