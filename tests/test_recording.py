@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import rerun as rr
 import rerun.chunk
-import torch
+from conftest import make_env
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
@@ -164,18 +164,15 @@ def test_ctrl_c_leaves_a_valid_file(tmp_path):
 
 
 def test_unwritable_path_fails_before_the_rollout(tmp_path):
-    env = fresh_env()
-    try:
-        blocker = tmp_path / "a_file"
-        blocker.write_text("")
-        with pytest.raises(OSError, match="cannot write the recording"):
-            RerunRecorder(env, str(blocker / "x.rrd"))  # its folder would have to be a file
-        with pytest.raises(ValueError, match="must end in .rrd"):
-            RerunRecorder(env, str(tmp_path / "x.txt"))
-        with pytest.raises(ValueError, match="image_format='png' is not one of: jpeg, raw"):
-            RerunRecorder(env, str(tmp_path / "x.rrd"), image_format="png")
-    finally:
-        env.close()
+    env = mav.DiscreteDirections(make_env(start_pose="search"))  # never closed here: the cached env
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(OSError, match="cannot write the recording"):
+        RerunRecorder(env, str(blocker / "x.rrd"))  # its folder would have to be a file
+    with pytest.raises(ValueError, match="must end in .rrd"):
+        RerunRecorder(env, str(tmp_path / "x.txt"))
+    with pytest.raises(ValueError, match="image_format='png' is not one of: jpeg, raw"):
+        RerunRecorder(env, str(tmp_path / "x.rrd"), image_format="png")
 
 
 def test_vector_env_with_autoreset_is_recorded_per_env(tmp_path):
