@@ -102,3 +102,14 @@ def test_bad_arguments_name_the_valid_values():
         make_vec_env("ActiveVisionFind-v0", 2, backend="tpu")
     with pytest.raises(ValueError, match="num_envs=0"):
         make_vec_env("ActiveVisionFind-v0", 0)
+
+
+def test_brdf_table_is_a_physical_split_sum():
+    from mani_active_vision.brdf_lut import brdf_lut_array, compute_brdf_lut
+
+    small = compute_brdf_lut(size=8, samples=256)
+    assert small.shape == (8, 8, 2) and (small >= 0).all() and (small.sum(-1) <= 1.0 + 1e-3).all()
+    assert small[-1, 0, 0] > 0.95 and small[-1, 0, 1] < 0.01  # head-on, smooth: all of F0, no bias
+    assert small[0, 0, 1] > 0.5  # grazing, smooth: Fresnel makes the bias large
+    shipped = brdf_lut_array()
+    assert shipped.shape == (128, 128, 2) and shipped.dtype == np.float32 and (shipped.sum(-1) <= 1.0 + 1e-3).all()
