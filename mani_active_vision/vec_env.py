@@ -83,7 +83,7 @@ def _make_gpu_vec_env(env_id: str, num_envs: int, wrappers: Sequence[Callable], 
     env = gym.make(env_id, num_envs=num_envs, sim_backend="physx_cuda", **env_kwargs)
     for wrap in wrappers:
         env = wrap(env)
-    return ManiSkillVectorEnv(env, ignore_terminations=True, record_metrics=True)
+    return ManiSkillVectorEnv(env, ignore_terminations=False, record_metrics=True)  # resets like the CPU pool
 
 
 class CPUVectorEnv(AsyncVectorEnv):
