@@ -20,6 +20,7 @@ seeds from `s` in ManiSkill's way), so workers differ and a run reproduces. A wo
 from __future__ import annotations
 
 import functools
+import multiprocessing
 import multiprocessing.connection
 import signal
 from collections.abc import Callable, Sequence
@@ -64,8 +65,10 @@ def make_vec_env(
 
 def _make_worker_env(env_id: str, wrappers: Sequence[Callable], env_kwargs: dict) -> gym.Env:
     """Runs in each worker: one thread for torch (its default pool slows every small op on a busy CPU,
-    DESIGN §9), one CPU env, the caller's wrappers."""
-    torch.set_num_threads(1)
+    DESIGN §9), one CPU env, the caller's wrappers. gymnasium also calls it once in the parent, to read
+    the spaces from a throwaway env: the parent's torch threads are left alone."""
+    if multiprocessing.parent_process() is not None:
+        torch.set_num_threads(1)
     import mani_active_vision  # noqa: F401  (registers the task in a fresh worker process)
     from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
