@@ -7,7 +7,7 @@ Also time to the first observation, resets and memory growth over reconfiguratio
 (`benchmark_env.py`). Ratios are to the reference measured in the same run (timings on a shared machine
 are noisy; the load average is recorded). Writes a markdown table and JSON to `--out`.
 
-    .venv/bin/python baselines/benchmark.py            # ~3 min on an idle 2-core machine
+    .venv/bin/python baselines/benchmark.py     # ~5 min on an idle 2-core machine (estimated); 15 min at load 15
 """
 
 from __future__ import annotations
