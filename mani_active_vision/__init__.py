@@ -7,5 +7,6 @@ from mani_active_vision.robots.iiwa import IiwaWristCam  # registers "iiwa_wrist
 from mani_active_vision.tasks.active_vision_find import ActiveVisionFindEnv  # registers "ActiveVisionFind-v0"
 from mani_active_vision.directions import DIRECTIONS, DiscreteDirections
 from mani_active_vision.boxes import mask_to_box
+from mani_active_vision.vec_env import make_vec_env
 
-__all__ = ["ActiveVisionFindEnv", "IiwaWristCam", "DIRECTIONS", "DiscreteDirections", "mask_to_box"]
+__all__ = ["ActiveVisionFindEnv", "IiwaWristCam", "DIRECTIONS", "DiscreteDirections", "mask_to_box", "make_vec_env"]

@@ -45,6 +45,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Pose
 
 from mani_active_vision.boxes import target_stats
+from mani_active_vision.brdf_lut import supply_brdf_lut
 from mani_active_vision.objects import OBJECT_SIZE, PALETTE, OBJECT_SETS, build_object, object_set
 from mani_active_vision.robots.iiwa import IiwaWristCam
 
@@ -145,6 +146,11 @@ class ActiveVisionFindEnv(BaseEnv):
     def _default_human_render_camera_configs(self):
         pose = sapien_utils.look_at([1.6, -1.4, 1.6], [0.3, 0.0, 0.4])
         return CameraConfig("render_camera", pose, 512, 512, 1.0, 0.01, 100)
+
+    def _setup_sensors(self, options: dict):
+        super()._setup_sensors(options)
+        # Saves the renderer ~14 s of CPU per process on software Vulkan (mani_active_vision.brdf_lut).
+        supply_brdf_lut([*self._sensors.values(), *self._human_render_cameras.values()])
 
     def _load_agent(self, options: dict):
         super()._load_agent(options, sapien.Pose())
