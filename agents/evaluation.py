@@ -180,3 +180,35 @@ def plot_curves(curves: dict[str, list], path: str, ylabel: str, window: int = 1
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def perturbation_trial(env, policy, seed: int, push_direction: int, push_steps: int, focus_limit: int = 100, recover_limit: int = 50) -> dict:
+    """Run `policy` until the first success (focus), then force `push_steps` steps of `push_direction`
+    (the arm is moved away whatever the policy wants), then let the policy act again until success.
+
+    Returns {"focused", "visible_after_push", "recovered", "steps_to_recover" (NaN if not)}. The env needs
+    a step limit of at least focus_limit + push_steps + recover_limit (gym.make's max_episode_steps).
+    """
+    obs, info = env.reset(seed=seed)
+    policy.reset(obs, info)
+    result = {"focused": False, "visible_after_push": False, "recovered": False, "steps_to_recover": math.nan}
+    for _ in range(focus_limit):
+        obs, _, _, _, info = env.step(policy.act(obs, info))
+        if bool(_first(info, "success")):
+            result["focused"] = True
+            break
+    if not result["focused"]:
+        return result
+    push = np.full(env.unwrapped.num_envs, push_direction, dtype=np.int64)
+    for _ in range(push_steps):
+        obs, _, _, _, info = env.step(push)
+    result["visible_after_push"] = bool(_first(info, "target_visible"))
+    if bool(_first(info, "success")):  # the push did not break focus
+        result.update(recovered=True, steps_to_recover=0.0)
+        return result
+    for step in range(1, recover_limit + 1):
+        obs, _, _, _, info = env.step(policy.act(obs, info))
+        if bool(_first(info, "success")):
+            result.update(recovered=True, steps_to_recover=float(step))
+            break
+    return result
