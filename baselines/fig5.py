@@ -30,18 +30,22 @@ CONDITIONS = {
     "random_explore": dict(placement="random", explore=True),
     "random_noexplore": dict(placement="random", explore=False),
     "random_explore_link": dict(placement="random", explore=True, with_ee_pos=True),
+    # not in the paper: the reward capped at the success share (normalized_dense), so that zooming past
+    # the success share (until the target touches the border) earns nothing more
+    "random_explore_capped_reward": dict(placement="random", explore=True, reward_mode="normalized_dense"),
 }
 FIGURES = {
     "a_fixed": ["fixed"],
     "b_exploration": ["random_explore", "random_noexplore"],
     "c_link_state": ["random_explore", "random_explore_link"],
+    "d_capped_reward": ["random_explore", "random_explore_capped_reward"],
 }
 
 
 @dataclass
 class Args:
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    """which conditions to run: fixed, random_explore, random_noexplore, random_explore_link"""
+    """which conditions to run (see CONDITIONS)"""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     """training seeds per condition"""
     episodes: int = 100
