@@ -91,9 +91,11 @@ def collect(args: Args) -> dict:
     return found
 
 
-def spread(values) -> str:
+def spread(values, digits: int = 2) -> str:
     values = np.asarray(values, dtype=float)
-    return f"{np.nanmean(values):.2f} ± {np.nanstd(values):.2f}"
+    if np.isnan(values).all():
+        return "–"
+    return f"{np.nanmean(values):.{digits}f} ± {np.nanstd(values):.{digits}f}"
 
 
 def report(args: Args):
@@ -112,7 +114,7 @@ def report(args: Args):
         last_return = [np.mean([h["return"] for h in hist[-10:]]) for hist in data["histories"]]
         ev = data["evals"]
         lines.append(f"| {condition} | {len(ev)} | {spread(last)} | {spread(last_return)} | {spread([e['success'] for e in ev])} | "
-                     f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_share'] for e in ev])} |")
+                     f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_share'] for e in ev], 3)} |")
     table = "\n".join(lines)
     with open(os.path.join(args.out_dir, "fig5_table.md"), "w") as f:
         f.write(table + "\n\n(mean ± std over seeds; eval: greedy policy, episodes from seed 1,000,000)\n")
