@@ -140,7 +140,7 @@ def markdown_table(rows: dict[str, dict]) -> str:
     header = "| policy | episodes | success | success at end | steps to see | steps to success | SPL | final share | return |"
     lines = [header, "|" + "---|" * 9]
     for name, s in rows.items():
-        cell = lambda k, f="{:.2f}": f"{f.format(s[k])} ± {f.format(s[k + '_std'])}"  # noqa: E731
+        cell = lambda k, f="{:.2f}": "–" if math.isnan(s[k]) else f"{f.format(s[k])} ± {f.format(s[k + '_std'])}"  # noqa: E731
         lines.append(f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | {cell('steps_to_see', '{:.1f}')} | "
                      f"{cell('steps_to_success', '{:.1f}')} | {s['spl']:.2f} | {cell('final_share', '{:.3f}')} | {cell('return')} |")
     return "\n".join(lines)
