@@ -1,10 +1,19 @@
-"""Policies with one interface, over `DiscreteDirections` actions.
+"""Policies with one interface, over `DiscreteDirections` actions, acting on the box state.
 
-A policy is built by `make_policy(name, env, **kwargs)` on the env it will act in (a ManiSkill env,
-possibly wrapped; batched or not), and then:
+A policy is built by `make_policy(name, env, **kwargs)` on the env it will act in: a `DiscreteDirections`
+env wrapped in `BoxState` (ground-truth or FCN box; batched or not), and then:
 - `policy.reset(obs, info)` at the start of every episode (for batched envs: whenever any env resets),
 - `policy.act(obs, info) -> np.ndarray` of direction indices (N,) int64, one per env.
-`obs` and `info` are what the wrapped env returned. Names: see POLICIES.
+`obs` and `info` are what the wrapped env returned; `obs[..., :4]` is the target's box (x, y, w, h),
+zeros when the target is not seen. Names: see POLICIES.
+
+- `random`: uniform directions (a lower bound).
+- `servo`: scripted; sweeps (orbits) until the box appears, centres it, then approaches. The sweep
+  reverses when a step is refused (joint 1 at its limit).
+- `explore`: the paper's scripted exploration with its hand-over rule: it orbits the robot's axis at the
+  search height until the target is seen once, then the policy named `then` acts for the rest of the
+  episode (the paper: DQN takes over). `then=None` keeps exploring (a baseline that only searches).
+- `dqn`: a trained `agents.dqn` Q-network, greedy (or ε-greedy with `epsilon`).
 """
 
 from __future__ import annotations
@@ -12,8 +21,28 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
+import torch
 
 from mani_active_vision.directions import DIRECTIONS
+
+LEFT, RIGHT, FORWARD, UP, DOWN = (DIRECTIONS.index(d) for d in ("left", "right", "forward", "up", "down"))
+
+
+def box_array(obs) -> np.ndarray:
+    """The box state as a (N, 4 or 7) float numpy array, from a batched torch or an unbatched numpy obs."""
+    if isinstance(obs, dict):
+        raise TypeError("policies act on the box state: wrap the env in mani_active_vision.box_state.BoxState")
+    array = obs.detach().cpu().numpy() if isinstance(obs, torch.Tensor) else np.asarray(obs)
+    return np.atleast_2d(array).astype(np.float32)
+
+
+def refused_array(info, num_envs: int) -> np.ndarray:
+    """Whether the last step was refused, per env (False at reset, when `info` has no `refused`)."""
+    if not info or "refused" not in info:
+        return np.zeros(num_envs, dtype=bool)
+    refused = info["refused"]
+    refused = refused.cpu().numpy() if isinstance(refused, torch.Tensor) else np.asarray(refused)
+    return np.atleast_1d(refused).astype(bool)
 
 
 class RandomPolicy:
@@ -30,7 +59,115 @@ class RandomPolicy:
         return self.rng.integers(0, len(DIRECTIONS), size=self.num_envs)
 
 
-POLICIES: dict[str, Callable] = {"random": RandomPolicy}
+class Sweep:
+    """Orbit one way around the robot's axis; turn back when a step is refused (at joint 1's limit)."""
+
+    def __init__(self, num_envs: int, first: int = LEFT):
+        self.first = first
+        self.direction = np.full(num_envs, first)
+
+    def reset(self):
+        self.direction[:] = self.first
+
+    def act(self, info) -> np.ndarray:
+        refused = refused_array(info, len(self.direction))
+        self.direction[refused] = np.where(self.direction[refused] == LEFT, RIGHT, LEFT)
+        return self.direction.copy()
+
+
+class ServoPolicy:
+    """Scripted servo on the box: sweep until seen, centre the box (orbit for x, up/down for y) within
+    `center_tol`, then step forward (zoom in). The sweep reverses on a refused step."""
+
+    def __init__(self, env, center_tol: float = 0.1, first_sweep: str = "left"):
+        self.num_envs = env.unwrapped.num_envs
+        self.center_tol = center_tol
+        self.sweep = Sweep(self.num_envs, DIRECTIONS.index(first_sweep))
+
+    def reset(self, obs, info):
+        self.sweep.reset()
+
+    def act(self, obs, info) -> np.ndarray:
+        x, y, w, h = box_array(obs)[:, :4].T
+        sweep = self.sweep.act(info)  # called every step so that refusals while sweeping turn it
+        cx, cy = x + w / 2, y + h / 2
+        action = np.full(self.num_envs, FORWARD)
+        off_y = np.abs(cy - 0.5) > self.center_tol
+        action[off_y] = np.where(cy[off_y] < 0.5, UP, DOWN)  # raising the camera moves the object down the image
+        off_x = np.abs(cx - 0.5) > self.center_tol
+        action[off_x] = np.where(cx[off_x] < 0.5, LEFT, RIGHT)
+        unseen = w <= 0
+        action[unseen] = sweep[unseen]
+        return action.astype(np.int64)
+
+
+class ExplorePolicy:
+    """The paper's exploration routine with hand-over: orbit (reversing on refusals) until the target is
+    seen; from then on, for the rest of the episode, the policy `then` acts (none: keep orbiting).
+
+    `handed_over` (N,) bool says which envs the explorer has handed over this episode: a learner uses it
+    to tell its own steps from the script's.
+    """
+
+    def __init__(self, env, then=None, seed: int = 0, **then_kwargs):
+        self.num_envs = env.unwrapped.num_envs
+        self.sweep = Sweep(self.num_envs)
+        if isinstance(then, str) and then != "none":  # a name in POLICIES, else a policy object (or None)
+            then = make_policy(then, env, **({"seed": seed} if then in ("random", "dqn") else {}), **then_kwargs)
+        self.then = None if then == "none" else then
+        self.handed_over = np.zeros(self.num_envs, dtype=bool)
+
+    def reset(self, obs, info):
+        self.sweep.reset()
+        self.handed_over[:] = False
+        if self.then is not None:
+            self.then.reset(obs, info)
+
+    def update(self, obs):
+        """Latch the hand-over for envs whose target is in view now; returns `handed_over`."""
+        if self.then is not None:
+            self.handed_over |= box_array(obs)[:, 2] > 0
+        return self.handed_over
+
+    def act(self, obs, info) -> np.ndarray:
+        action = self.sweep.act(info)
+        handed_over = self.update(obs)
+        if handed_over.any():
+            action = np.where(handed_over, self.then.act(obs, info), action)
+        return action.astype(np.int64)
+
+
+class DQNPolicy:
+    """A Q-network: argmax Q, or ε-greedy with `epsilon`. From an `agents.dqn` checkpoint file, or (while
+    training) the live `q_network` itself."""
+
+    def __init__(self, env, checkpoint: str | None = None, epsilon: float = 0.0, seed: int = 0, q_network=None):
+        from mani_active_vision.agents.dqn import load_q_network
+
+        if (checkpoint is None) == (q_network is None):
+            raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
+        self.num_envs = env.unwrapped.num_envs
+        self.q_network, self.config = (q_network, {}) if q_network is not None else load_q_network(checkpoint)
+        state_dim = box_array(env.observation_space.sample()).shape[-1]
+        if state_dim != self.q_network.state_dim:
+            raise ValueError(f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
+                             f"(with_ee_pos={self.config.get('with_ee_pos')}), the env gives {state_dim}")
+        self.epsilon = epsilon
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, obs, info):
+        pass
+
+    def act(self, obs, info) -> np.ndarray:
+        with torch.no_grad():
+            q = self.q_network(torch.as_tensor(box_array(obs)))
+        action = q.argmax(-1).numpy().astype(np.int64)
+        explore = self.rng.random(self.num_envs) < self.epsilon
+        action[explore] = self.rng.integers(0, len(DIRECTIONS), size=int(explore.sum()))
+        return action
+
+
+POLICIES: dict[str, Callable] = {"random": RandomPolicy, "servo": ServoPolicy, "explore": ExplorePolicy, "dqn": DQNPolicy}
 
 
 def make_policy(name: str, env, **kwargs):

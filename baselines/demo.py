@@ -1,8 +1,9 @@
-"""The main job (first version): a scripted search in ActiveVisionFind-v0.
+"""The main job: train the paper's DQN (with the scripted exploration) in ActiveVisionFind-v0, evaluate it,
+and draw its learning curve.
 
-Orbits left from the search pose until the target is seen, then centres its ground-truth box (orbit for
-x, up/down for y) and steps forward (zooms in); prints what it saw and writes a PNG of the wrist view
-beside the target image to outputs/.
+Trains `agents.dqn` with the paper's configuration (100 episodes, ε 0.1 -> 0.02, 20 hidden units) on the
+box state (ground truth; `--box-source fcn` once the FCN is in), evaluates the greedy agent (exploration,
+then the DQN) on fixed evaluation seeds, prints a table and where everything was written.
 """
 
 from __future__ import annotations
@@ -10,55 +11,54 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-import gymnasium as gym
-import numpy as np
 import torch
 import tyro
-from PIL import Image
 
-import mani_active_vision as mav
+from mani_active_vision.agents import dqn
+from mani_active_vision.agents.evaluation import evaluate, make_box_env, markdown_table, plot_curves, save_json, summarize
+from mani_active_vision.agents.policies import make_policy
 
 
 @dataclass
 class Args:
     seed: int = 0
-    out_dir: str = "outputs"
-
-
-def servo_direction(box, sweep: str) -> str:
-    x, y, w, h = box
-    if w == 0:
-        return sweep  # not seen: orbit
-    cx, cy = x + w / 2, y + h / 2
-    if abs(cx - 0.5) > 0.1:
-        return "left" if cx < 0.5 else "right"
-    if abs(cy - 0.5) > 0.1:
-        return "up" if cy < 0.5 else "down"  # raising the camera moves the object down the image
-    return "forward"
+    """training seed"""
+    episodes: int = 100
+    """training episodes (paper: 100)"""
+    eval_episodes: int = 10
+    """greedy evaluation episodes (seeds from 1,000,000)"""
+    box_source: str = "ground_truth"
+    """ground_truth or fcn"""
+    image_size: int = 64
+    """wrist camera side in pixels"""
+    out_dir: str = "outputs/demo"
+    """where the checkpoint, curves and metrics go"""
 
 
 def main(args: Args):
     torch.set_num_threads(1)
-    env = mav.DiscreteDirections(gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search"))
-    obs, info = env.reset(seed=args.seed)
-    print(f"objects: {env.unwrapped.object_names[0]} (target: {env.unwrapped.object_names[0][0]})")
-    sweep = "left"
-    for step in range(100):
-        action = mav.DIRECTIONS.index(servo_direction(info["target_bbox"][0].tolist(), sweep))
-        obs, reward, terminated, truncated, info = env.step(action)
-        if bool(info["refused"][0]):  # at a limit (joint 1 at ±170°, the workspace): sweep back
-            sweep = "right" if sweep == "left" else "left"
-        if step % 10 == 0 or bool(info["success"][0]):
-            print(f"step {step:3d} {mav.DIRECTIONS[action]:8s} target share {float(reward[0]):.3f} visible {bool(info['target_visible'][0])}")
-        if bool(info["success"][0]):
-            break
-    os.makedirs(args.out_dir, exist_ok=True)
-    view = obs["sensor_data"]["hand_camera"]["rgb"][0].numpy()
-    target = np.array(Image.fromarray(obs["extra"]["target_image"][0].numpy()).resize(view.shape[:2][::-1]))
-    path = os.path.join(args.out_dir, "demo_view.png")
-    Image.fromarray(np.concatenate([view, target], 1)).save(path)
-    print(f"success: {bool(info['success'][0])}; wrist view | target image written to {path}")
+    train_args = dqn.Args(seed=args.seed, episodes=args.episodes, box_source=args.box_source, image_size=args.image_size,
+                          explore=True, run_dir=args.out_dir, run_name="dqn")
+    print(f"training DQN ({args.episodes} episodes, paper configuration, scripted exploration, {args.box_source} box)")
+    result = dqn.train(train_args)
+    history = result["history"]
+    curve = os.path.join(args.out_dir, "learning_curve_success.png")
+    plot_curves({"DQN + exploration": [[h["success"] for h in history]]}, curve, "success rate", title="training")
+
+    env = make_box_env(**dqn.env_kwargs(train_args))
+    policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
+    episodes = evaluate(env, policy, range(1_000_000, 1_000_000 + args.eval_episodes), desc="evaluate")
     env.close()
+    summary = summarize(episodes)
+    metrics = os.path.join(args.out_dir, "evaluation.json")
+    save_json({"summary": summary, "episodes": episodes}, metrics)
+
+    print(markdown_table({"explore→dqn": summary}))
+    print("outputs:")
+    for what, path in [("checkpoint", result["checkpoint"]), ("training history", os.path.join(result["run_dir"], "history.json")),
+                       ("learning curve (return)", os.path.join(result["run_dir"], "learning_curve.png")),
+                       ("learning curve (success)", curve), ("evaluation metrics", metrics)]:
+        print(f"  {what:26s} {path}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,250 @@
+"""DQN on the target's box (the paper's learner), one file in the CleanRL manner.
+
+    python -m mani_active_vision.agents.dqn --help
+    python -m mani_active_vision.agents.dqn --seed 0 --placement random --explore
+
+The paper's configuration is the default: an MLP with one hidden layer of 20 units, Adam at lr 1e-3, a
+replay buffer of 50,000 transitions, 100 episodes, ε decayed linearly 0.1 -> 0.02 over the episodes, the
+box (x, y, w, h) as the state and the target's share of the image as the reward. With `--explore` the
+paper's scripted exploration orbits until the target is first seen, then the DQN acts for the rest of the
+episode; only the DQN's own transitions go into the replay buffer.
+
+Deviations from / additions to the paper (it does not state the rest):
+- discount, batch size, learning start and update frequency are not given in the paper: ours are below;
+- a target network (on by default: the standard DQN of Mnih et al. 2015), double DQN and the Huber loss
+  are options; the default loss is the mean squared TD error;
+- the state is the ground-truth box until the FCN lands (`--box-source fcn` then); `--with-ee-pos` adds
+  the camera's commanded position (the paper's "link state" experiment);
+- episodes of 100 steps (the task's limit); the paper's episode length is not given.
+Checkpoints: `q_network.pt` holds {"state_dict", "config"} of plain tensors and numbers, so it loads with
+`torch.load(path, weights_only=True)`; `load_q_network(path)` rebuilds the network.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import random
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+from tqdm import tqdm
+
+from mani_active_vision.agents.evaluation import Trajectory, episode_metrics, make_box_env, plot_curves, save_json
+from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array
+from mani_active_vision.directions import DIRECTIONS
+
+TRAIN_SEED_STRIDE = 10_000
+"""Training episode k of run seed s resets the env with seed s * TRAIN_SEED_STRIDE + k (evaluation uses
+seeds from 1,000,000 up: never a training scene)."""
+
+
+@dataclass
+class Args:
+    seed: int = 0
+    """seed of the run (torch, numpy, the env's episodes)"""
+    episodes: int = 100
+    """training episodes (paper: 100)"""
+    learning_rate: float = 1e-3
+    """Adam learning rate (paper: 1e-3)"""
+    buffer_size: int = 50_000
+    """replay buffer capacity in transitions (paper: 50,000)"""
+    hidden_units: int = 20
+    """units of the one hidden layer (paper: 20)"""
+    start_epsilon: float = 0.1
+    """ε-greedy ε at the first episode (paper: 0.1)"""
+    end_epsilon: float = 0.02
+    """ε at the last episode, linear in between (paper: 0.02)"""
+    gamma: float = 0.9
+    """discount (not in the paper)"""
+    batch_size: int = 32
+    """minibatch size (not in the paper)"""
+    learning_starts: int = 100
+    """transitions in the buffer before updates start (not in the paper)"""
+    train_frequency: int = 1
+    """env steps per gradient update (not in the paper)"""
+    target_network: bool = True
+    """bootstrap from a periodically copied target network (not in the paper)"""
+    target_update_steps: int = 250
+    """env steps between target-network copies"""
+    double_dqn: bool = False
+    """double DQN: the online network picks the next action, the target network values it"""
+    huber: bool = False
+    """Huber (smooth L1) TD loss instead of the squared error"""
+    explore: bool = True
+    """the paper's scripted exploration until the target is first seen, then the DQN"""
+    placement: str = "random"
+    """object placement: random, or fixed (the same scene every episode)"""
+    with_ee_pos: bool = False
+    """append the camera's commanded position to the box (the paper's link-state experiment)"""
+    box_source: str = "ground_truth"
+    """where the box comes from: ground_truth (segmentation) or fcn (once the vision branch lands)"""
+    image_size: int = 64
+    """wrist camera side in pixels (the ground-truth box only needs 64)"""
+    start_pose: str = "sky"
+    """arm start: sky (the paper's) or search"""
+    num_objects: int = 5
+    """objects on the floor, one of them the target"""
+    object_set: str = "train"
+    """object set: train, unseen or primitives"""
+    reward_mode: str = "dense"
+    """dense (the target's share of the image: the paper's), normalized_dense or sparse"""
+    run_dir: str = "runs/dqn"
+    """where the checkpoint, history and learning curve go (a folder per run is made inside)"""
+    run_name: str = ""
+    """the run's folder name (default: made from the options and the seed)"""
+
+
+class QNetwork(nn.Module):
+    """The paper's Q-network: state -> one hidden ReLU layer -> a Q-value per direction."""
+
+    def __init__(self, state_dim: int, hidden_units: int = 20, num_actions: int = len(DIRECTIONS)):
+        super().__init__()
+        self.state_dim = state_dim
+        self.network = nn.Sequential(nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions))
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        return self.network(state)
+
+
+def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
+    """`start` at t = 0, `end` from t = duration on, linear in between."""
+    if duration <= 0:
+        return end
+    return start + (end - start) * min(t, duration) / duration
+
+
+class ReplayBuffer:
+    """A ring buffer of (state, action, reward, next_state, terminated) transitions."""
+
+    def __init__(self, capacity: int, state_dim: int):
+        self.states = np.zeros((capacity, state_dim), np.float32)
+        self.next_states = np.zeros((capacity, state_dim), np.float32)
+        self.actions = np.zeros(capacity, np.int64)
+        self.rewards = np.zeros(capacity, np.float32)
+        self.terminated = np.zeros(capacity, np.float32)
+        self.capacity, self.size, self._next = capacity, 0, 0
+
+    def add(self, state, action, reward, next_state, terminated):
+        i = self._next
+        self.states[i], self.actions[i], self.rewards[i] = state, action, reward
+        self.next_states[i], self.terminated[i] = next_state, terminated
+        self._next = (i + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        idx = rng.integers(0, self.size, size=batch_size)
+        return {k: torch.as_tensor(getattr(self, k)[idx]) for k in ("states", "actions", "rewards", "next_states", "terminated")}
+
+
+def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: float, double_dqn: bool = False, huber: bool = False) -> torch.Tensor:
+    """The TD loss of a batch: Q(s, a) against r + γ (1 - terminated) max_a' Q_target(s', a')."""
+    with torch.no_grad():
+        next_q = target_network(batch["next_states"])
+        if double_dqn:
+            next_action = q_network(batch["next_states"]).argmax(-1, keepdim=True)
+            next_value = next_q.gather(1, next_action).squeeze(1)
+        else:
+            next_value = next_q.max(-1).values
+        td_target = batch["rewards"] + gamma * (1.0 - batch["terminated"]) * next_value
+    q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
+    return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
+
+
+def save_checkpoint(path: str, q_network: QNetwork, args: Args):
+    config = {**dataclasses.asdict(args), "state_dim": q_network.state_dim}
+    torch.save({"state_dict": q_network.state_dict(), "config": config}, path)
+
+
+def load_q_network(path: str) -> tuple[QNetwork, dict]:
+    """The Q-network of a checkpoint and the config it was trained with (loads with weights_only=True)."""
+    checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    config = checkpoint["config"]
+    q_network = QNetwork(config["state_dim"], config["hidden_units"])
+    q_network.load_state_dict(checkpoint["state_dict"])
+    return q_network.eval(), config
+
+
+def env_kwargs(args: Args) -> dict:
+    """The env options of a run (shared by training and evaluating its checkpoint)."""
+    return dict(box_source=args.box_source, with_ee_pos=args.with_ee_pos, image_size=args.image_size, placement=args.placement,
+                start_pose=args.start_pose, num_objects=args.num_objects, object_set=args.object_set, reward_mode=args.reward_mode)
+
+
+def default_run_name(args: Args) -> str:
+    return f"{args.placement}_{'explore' if args.explore else 'noexplore'}{'_ee' if args.with_ee_pos else ''}_seed{args.seed}"
+
+
+def train(args: Args, env=None, progress: bool = True) -> dict:
+    """Train one DQN; returns {"run_dir", "checkpoint", "history" (one dict per episode)}."""
+    torch.set_num_threads(1)
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    env = env if env is not None else make_box_env(**env_kwargs(args))
+    state_dim = box_array(env.observation_space.sample()).shape[-1]
+
+    q_network = QNetwork(state_dim, args.hidden_units)
+    optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate)
+    target_network = QNetwork(state_dim, args.hidden_units)
+    target_network.load_state_dict(q_network.state_dict())
+    if not args.target_network:
+        target_network = q_network  # bootstrap from the online network itself
+    learner = DQNPolicy(env, q_network=q_network, seed=args.seed)
+    policy = ExplorePolicy(env, then=learner) if args.explore else learner
+    buffer = ReplayBuffer(args.buffer_size, state_dim)
+
+    run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
+    os.makedirs(run_dir, exist_ok=True)
+    history, global_step, start = [], 0, time.time()
+    trajectory = Trajectory()
+    bar = tqdm(range(args.episodes), desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
+    for episode in bar:
+        learner.epsilon = linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, episode)
+        obs, info = env.reset(seed=args.seed * TRAIN_SEED_STRIDE + episode)
+        policy.reset(obs, info)
+        trajectory.start(info)
+        losses, learner_steps, done = [], 0, False
+        while not done:
+            learner_acts = bool(policy.update(obs)[0]) if args.explore else True
+            action = policy.act(obs, info)
+            next_obs, reward, terminated, truncated, info = env.step(action)
+            trajectory.append(reward, info)
+            terminated, done = bool(terminated[0]), bool(terminated[0] or truncated[0])
+            if learner_acts:  # the script's steps are not the learner's experience
+                buffer.add(box_array(obs)[0], action[0], float(reward[0]), box_array(next_obs)[0], terminated)
+                learner_steps += 1
+            obs = next_obs
+            global_step += 1
+
+            if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
+                loss = td_loss(q_network, target_network, buffer.sample(args.batch_size, rng), args.gamma, args.double_dqn, args.huber)
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+                losses.append(loss.item())
+            if args.target_network and global_step % args.target_update_steps == 0:
+                target_network.load_state_dict(q_network.state_dict())
+
+        metrics = episode_metrics(trajectory)
+        history.append({"episode": episode, "epsilon": learner.epsilon, "learner_steps": learner_steps,
+                        "td_loss": float(np.mean(losses)) if losses else float("nan"), **metrics})
+        bar.set_postfix(ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}")
+
+    checkpoint = os.path.join(run_dir, "q_network.pt")
+    save_checkpoint(checkpoint, q_network, args)
+    save_json({"config": dataclasses.asdict(args), "seconds": time.time() - start, "env_steps": global_step, "history": history},
+              os.path.join(run_dir, "history.json"))
+    plot_curves({default_run_name(args): [[h["return"] for h in history]]}, os.path.join(run_dir, "learning_curve.png"), "episode return")
+    return {"run_dir": run_dir, "checkpoint": checkpoint, "history": history}
+
+
+if __name__ == "__main__":
+    result = train(tyro.cli(Args))
+    print(f"checkpoint: {result['checkpoint']}")

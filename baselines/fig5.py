@@ -1,0 +1,137 @@
+"""The paper's Fig. 5: DQN learning curves over several seeds, mean ± spread, and a table.
+
+(a) fixed object placement; (b) random placement with and without the scripted exploration;
+(c) random placement with exploration, with and without the link state (camera position) in the state.
+
+    python baselines/fig5.py --conditions fixed --seeds 0 1 2      # one condition (run several in parallel)
+    python baselines/fig5.py --plot-only                            # curves and table from finished runs
+
+Each (condition, seed) trains `agents.dqn` (paper configuration) and then evaluates the greedy agent on
+fixed evaluation seeds; finished runs are skipped, so an interrupted job resumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import tyro
+
+from mani_active_vision.agents import dqn
+from mani_active_vision.agents.evaluation import evaluate, make_box_env, plot_curves, save_json, summarize
+from mani_active_vision.agents.policies import make_policy
+
+CONDITIONS = {
+    "fixed": dict(placement="fixed", explore=False),
+    "random_explore": dict(placement="random", explore=True),
+    "random_noexplore": dict(placement="random", explore=False),
+    "random_explore_link": dict(placement="random", explore=True, with_ee_pos=True),
+    # not in the paper: the reward capped at the success share (normalized_dense), so that zooming past
+    # the success share (until the target touches the border) earns nothing more
+    "random_explore_capped_reward": dict(placement="random", explore=True, reward_mode="normalized_dense"),
+}
+FIGURES = {
+    "a_fixed": ["fixed"],
+    "b_exploration": ["random_explore", "random_noexplore"],
+    "c_link_state": ["random_explore", "random_explore_link"],
+    "d_capped_reward": ["random_explore", "random_explore_capped_reward"],
+}
+
+
+@dataclass
+class Args:
+    conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
+    """which conditions to run (see CONDITIONS)"""
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    """training seeds per condition"""
+    episodes: int = 100
+    """training episodes per run (paper: 100)"""
+    eval_episodes: int = 20
+    """greedy evaluation episodes per run (seeds from 1,000,000)"""
+    out_dir: str = "runs/fig5"
+    """where runs, curves and the table go"""
+    plot_only: bool = False
+    """only collect finished runs into curves and the table"""
+    box_source: str = "ground_truth"
+    """ground_truth or fcn"""
+
+
+def run(condition: str, seed: int, args: Args):
+    run_dir = os.path.join(args.out_dir, condition)
+    eval_path = os.path.join(run_dir, f"seed{seed}", "eval.json")
+    if os.path.exists(eval_path):
+        return
+    train_args = dqn.Args(seed=seed, episodes=args.episodes, box_source=args.box_source, run_dir=run_dir, run_name=f"seed{seed}",
+                          **CONDITIONS[condition])
+    result = dqn.train(train_args)
+    env = make_box_env(**dqn.env_kwargs(train_args))
+    policy_kwargs = dict(then="dqn", checkpoint=result["checkpoint"]) if train_args.explore else dict(checkpoint=result["checkpoint"])
+    policy = make_policy("explore" if train_args.explore else "dqn", env, **policy_kwargs)
+    episodes = evaluate(env, policy, range(1_000_000, 1_000_000 + args.eval_episodes), with_reference=False, desc=f"eval {condition} {seed}")
+    env.close()
+    save_json({"summary": summarize(episodes), "episodes": episodes}, eval_path)
+
+
+def collect(args: Args) -> dict:
+    """condition -> {"histories": [per-seed list of episode dicts], "evals": [per-seed summary]}."""
+    found = {}
+    for condition in CONDITIONS:
+        histories, evals = [], []
+        for seed_dir in sorted(os.listdir(os.path.join(args.out_dir, condition))) if os.path.isdir(os.path.join(args.out_dir, condition)) else []:
+            path = os.path.join(args.out_dir, condition, seed_dir)
+            if os.path.exists(os.path.join(path, "eval.json")):
+                histories.append(json.load(open(os.path.join(path, "history.json")))["history"])
+                evals.append(json.load(open(os.path.join(path, "eval.json")))["summary"])
+        if histories:
+            found[condition] = {"histories": histories, "evals": evals}
+    return found
+
+
+def spread(values, digits: int = 2) -> str:
+    values = np.asarray(values, dtype=float)
+    if np.isnan(values).all():
+        return "–"
+    return f"{np.nanmean(values):.{digits}f} ± {np.nanstd(values):.{digits}f}"
+
+
+def report(args: Args):
+    found = collect(args)
+    for figure, conditions in FIGURES.items():
+        present = [c for c in conditions if c in found]
+        for key, label in (("return", "episode return"), ("success", "success rate")):
+            if present:
+                path = os.path.join(args.out_dir, f"fig5{figure}_{key}.png")
+                plot_curves({c: [[h[key] for h in hist] for hist in found[c]["histories"]] for c in present}, path, label, title=f"Fig. 5 {figure}")
+                print(f"wrote {path}")
+    lines = ["| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval steps to success | eval final share |",
+             "|" + "---|" * 8]
+    for condition, data in found.items():
+        last = [np.mean([h["success"] for h in hist[-10:]]) for hist in data["histories"]]
+        last_return = [np.mean([h["return"] for h in hist[-10:]]) for hist in data["histories"]]
+        ev = data["evals"]
+        lines.append(f"| {condition} | {len(ev)} | {spread(last)} | {spread(last_return)} | {spread([e['success'] for e in ev])} | "
+                     f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_share'] for e in ev], 3)} |")
+    table = "\n".join(lines)
+    with open(os.path.join(args.out_dir, "fig5_table.md"), "w") as f:
+        f.write(table + "\n\n(mean ± std over seeds; eval: greedy policy, episodes from seed 1,000,000)\n")
+    print(table)
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    for condition in args.conditions:
+        if condition not in CONDITIONS:
+            raise ValueError(f"condition={condition!r} is not one of: {', '.join(CONDITIONS)}")
+    if not args.plot_only:
+        for condition in args.conditions:
+            for seed in args.seeds:
+                run(condition, seed, args)
+    report(args)
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

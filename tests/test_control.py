@@ -1,0 +1,143 @@
+"""Control: the DQN's pieces, the policies, the metrics and a short end-to-end training run."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from conftest import make_env
+
+import mani_active_vision as mav
+from mani_active_vision.agents import dqn
+from mani_active_vision.agents.evaluation import Trajectory, episode_metrics, evaluate, markdown_table, summarize
+from mani_active_vision.agents.policies import DOWN, FORWARD, LEFT, POLICIES, RIGHT, UP, ExplorePolicy, make_policy
+from mani_active_vision.box_state import BoxState
+
+
+def _box_env(**kwargs):
+    return BoxState(mav.DiscreteDirections(make_env(**kwargs)))
+
+
+def _batch(n=64, state_dim=4, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return {"states": torch.rand(n, state_dim, generator=g), "actions": torch.randint(0, 6, (n,), generator=g),
+            "rewards": torch.rand(n, generator=g), "next_states": torch.rand(n, state_dim, generator=g),
+            "terminated": (torch.rand(n, generator=g) < 0.2).float()}
+
+
+@pytest.mark.parametrize("double_dqn,huber", [(False, False), (True, True)])
+def test_dqn_update_lowers_the_td_error_on_a_fixed_batch(double_dqn, huber):
+    torch.manual_seed(0)
+    q_network, target_network = dqn.QNetwork(4), dqn.QNetwork(4)
+    target_network.load_state_dict(q_network.state_dict())
+    optimizer = torch.optim.Adam(q_network.parameters(), lr=1e-3)
+    batch = _batch()
+    before = dqn.td_loss(q_network, target_network, batch, 0.9, double_dqn, huber).item()
+    for _ in range(200):
+        loss = dqn.td_loss(q_network, target_network, batch, 0.9, double_dqn, huber)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    assert loss.item() < 0.5 * before
+
+
+def test_td_target_uses_reward_discount_and_termination():
+    q_network, target_network = dqn.QNetwork(4), dqn.QNetwork(4)
+    for net, value in ((q_network, 0.0), (target_network, 2.0)):
+        torch.nn.init.zeros_(net.network[2].weight)
+        torch.nn.init.constant_(net.network[2].bias, value)
+    batch = {"states": torch.zeros(2, 4), "actions": torch.tensor([0, 1]), "rewards": torch.tensor([1.0, 1.0]),
+             "next_states": torch.zeros(2, 4), "terminated": torch.tensor([0.0, 1.0])}
+    # targets 1 + 0.5 * 2 = 2 and 1 (terminated); Q = 0: squared errors 4 and 1
+    assert dqn.td_loss(q_network, target_network, batch, gamma=0.5).item() == pytest.approx(2.5)
+
+
+def test_epsilon_schedule_is_linear_over_the_episodes():
+    eps = [dqn.linear_schedule(0.1, 0.02, 99, t) for t in range(100)]
+    assert eps[0] == pytest.approx(0.1) and eps[-1] == pytest.approx(0.02)
+    assert np.allclose(np.diff(eps), -0.08 / 99)
+    assert dqn.linear_schedule(0.1, 0.02, 99, 500) == pytest.approx(0.02)
+    assert dqn.linear_schedule(0.1, 0.02, 0, 0) == 0.02
+
+
+def test_servo_centres_then_approaches_and_its_sweep_turns_on_refusal():
+    env = _box_env(start_pose="search")
+    servo = make_policy("servo", env)
+    servo.reset(None, {})
+    act = lambda box, refused=False: int(servo.act(torch.tensor([box]), {"refused": torch.tensor([refused])})[0])  # noqa: E731
+    assert act([0.4, 0.4, 0.2, 0.2]) == FORWARD  # centred
+    assert act([0.0, 0.4, 0.2, 0.2]) == LEFT and act([0.8, 0.4, 0.2, 0.2]) == RIGHT
+    assert act([0.4, 0.0, 0.2, 0.2]) == UP and act([0.4, 0.8, 0.2, 0.2]) == DOWN
+    assert act([0, 0, 0, 0]) == LEFT  # unseen: sweep
+    assert act([0, 0, 0, 0], refused=True) == RIGHT and act([0, 0, 0, 0]) == RIGHT
+
+
+def test_exploration_hands_over_once_the_target_is_seen(tmp_path):
+    env = _box_env(start_pose="search")
+    q_network = dqn.QNetwork(4)
+    torch.nn.init.zeros_(q_network.network[2].weight)
+    with torch.no_grad():
+        q_network.network[2].bias[:] = torch.tensor([0.0, 0, 0, 0, 0, 1])  # always "down"
+    explore = ExplorePolicy(env, then=make_policy("dqn", env, q_network=q_network))
+    unseen, seen = torch.zeros(1, 4), torch.tensor([[0.4, 0.4, 0.1, 0.1]])
+    explore.reset(unseen, {})
+    assert int(explore.act(unseen, {})[0]) == LEFT and not explore.handed_over[0]
+    assert int(explore.act(seen, {})[0]) == DOWN and explore.handed_over[0]
+    assert int(explore.act(unseen, {})[0]) == DOWN  # the hand-over holds for the rest of the episode
+    explore.reset(unseen, {})
+    assert int(explore.act(unseen, {})[0]) == LEFT
+    with pytest.raises(ValueError, match="not one of"):
+        make_policy("greedy", env)
+
+
+def test_every_policy_acts_in_the_action_space(tmp_path):
+    env = _box_env(placement="random")
+    checkpoint = str(tmp_path / "q.pt")
+    dqn.save_checkpoint(checkpoint, dqn.QNetwork(4), dqn.Args())
+    kwargs = {"dqn": {"checkpoint": checkpoint}, "explore": {"then": "dqn", "checkpoint": checkpoint}}
+    for name in POLICIES:
+        policy = make_policy(name, env, **kwargs.get(name, {}))
+        obs, info = env.reset(seed=3)
+        policy.reset(obs, info)
+        for _ in range(3):
+            action = policy.act(obs, info)
+            assert action.shape == (1,) and action.dtype == np.int64 and env.action_space.contains(int(action[0])), name
+            obs, _, _, _, info = env.step(action)
+    with pytest.raises(ValueError, match="expects a state of 4"):
+        make_policy("dqn", BoxState(mav.DiscreteDirections(make_env(placement="random")), with_ee_pos=True), checkpoint=checkpoint)
+
+
+def _trajectory(visible, success, share, rewards):
+    t = Trajectory()
+    t.visible, t.success, t.share, t.rewards = list(visible), list(success), list(share), list(rewards)
+    return t
+
+
+def test_metrics_on_hand_made_trajectories():
+    # entry 0 is the reset; success first at step 3, lost at the end
+    t = _trajectory([0, 0, 1, 1, 1], [0, 0, 0, 1, 0], [0, 0, 0.05, 0.12, 0.09], [0, 0.05, 0.12, 0.09])
+    m = episode_metrics(t, reference_steps=2)
+    assert m == {"success": 1.0, "success_final": 0.0, "steps_to_see": 2.0, "steps_to_success": 3.0, "spl": pytest.approx(2 / 3),
+                 "final_share": 0.09, "return": pytest.approx(0.26)}
+    assert episode_metrics(t, reference_steps=7)["spl"] == 1.0  # the agent's path is the shortest known
+    assert episode_metrics(t)["spl"] == 1.0
+    never = episode_metrics(_trajectory([1, 1], [0, 0], [0.01, 0.02], [0.02]), reference_steps=2)
+    assert never["success"] == 0 and never["spl"] == 0 and math.isnan(never["steps_to_success"]) and never["steps_to_see"] == 0
+    summary = summarize([m, never])
+    assert summary["success"] == 0.5 and summary["steps_to_success"] == 3.0 and summary["steps_to_see"] == 1.0
+    assert "| a | 2 | 0.50 |" in markdown_table({"a": summary})
+
+
+def test_a_short_training_run_end_to_end(tmp_path):
+    env = _box_env(placement="random", max_episode_steps=40)  # short episodes: the same code, less time
+    args = dqn.Args(episodes=2, learning_starts=20, target_update_steps=50, run_dir=str(tmp_path))
+    result = dqn.train(args, env=env, progress=False)
+    assert len(result["history"]) == 2 and result["history"][1]["epsilon"] == pytest.approx(0.02)
+    assert sum(h["learner_steps"] for h in result["history"]) > 0  # the target was seen, the DQN acted
+    assert not math.isnan(result["history"][-1]["td_loss"])
+    checkpoint = torch.load(result["checkpoint"], weights_only=True)
+    assert checkpoint["config"]["hidden_units"] == 20 and checkpoint["config"]["state_dim"] == 4
+    assert (tmp_path / "random_explore_seed0" / "learning_curve.png").stat().st_size > 1000
+    policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"])
+    episodes = evaluate(env, policy, [1_000_000], with_reference=False)
+    assert set(episodes[0]) >= {"success", "spl", "steps_to_see", "return"}
