@@ -25,15 +25,24 @@ from tqdm import tqdm
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
+from mani_active_vision.recording import RerunRecorder
 
 METRICS = ("success", "success_final", "steps_to_see", "steps_to_success", "spl", "final_share", "return")
 
 
-def make_box_env(box_source: str = "ground_truth", with_ee_pos: bool = False, image_size: int = 64, **env_kwargs) -> gym.Env:
-    """`ActiveVisionFind-v0` (one env, CPU renderer) with the six directions and the box state."""
-    env = gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu",
-                   sensor_configs=dict(hand_camera=dict(width=image_size, height=image_size)), **env_kwargs)
-    return BoxState(mav.DiscreteDirections(env), source=box_source, with_ee_pos=with_ee_pos)
+def make_box_env(box_source: str = "ground_truth", with_ee_pos: bool = False, image_size: int = 64,
+                 record_to: str | None = None, **env_kwargs) -> gym.Env:
+    """`ActiveVisionFind-v0` (one env, CPU renderer) with the six directions and the box state; with
+    `record_to`, a Rerun recorder (which also shows the box's mask) writes the rollouts to that .rrd file."""
+    env = mav.DiscreteDirections(gym.make(
+        "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu",
+        sensor_configs=dict(hand_camera=dict(width=image_size, height=image_size)), **env_kwargs))
+    if record_to is None:
+        return BoxState(env, source=box_source, with_ee_pos=with_ee_pos)
+    recorder = RerunRecorder(env, record_to)
+    box_env = BoxState(recorder, source=box_source, with_ee_pos=with_ee_pos)
+    recorder.show_masks_of(box_env)
+    return box_env
 
 
 def _first(info, key) -> float:

@@ -1,9 +1,10 @@
 """The main job: train the paper's DQN (with the scripted exploration) in ActiveVisionFind-v0, evaluate it,
-and draw its learning curve.
+draw its learning curve and record it.
 
 Trains `agents.dqn` with the paper's configuration (100 episodes, ε 0.1 -> 0.02, 20 hidden units) on the
-box state (ground truth; `--box-source fcn` once the FCN is in), evaluates the greedy agent (exploration,
-then the DQN) on fixed evaluation seeds, prints a table and where everything was written.
+box state from the shipped FCN (`--box-source ground_truth` for the segmentation's box), evaluates the
+greedy agent (exploration, then the DQN) on fixed evaluation seeds, records the first evaluation episodes
+to a Rerun file, prints a table and where everything was written.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import tyro
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.evaluation import evaluate, make_box_env, markdown_table, plot_curves, save_json, summarize
 from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.recording import record_rollouts
 
 
 @dataclass
@@ -27,12 +29,16 @@ class Args:
     """training episodes (paper: 100)"""
     eval_episodes: int = 10
     """greedy evaluation episodes (seeds from 1,000,000)"""
-    box_source: str = "ground_truth"
-    """ground_truth or fcn"""
+    box_source: str = "fcn"
+    """fcn (the shipped one-shot segmentation network, as in the paper) or ground_truth"""
     image_size: int = 64
     """wrist camera side in pixels"""
     out_dir: str = "outputs/demo"
     """where the checkpoint, curves and metrics go"""
+    record_episodes: int = 2
+    """evaluation episodes (the first ones) to record to a Rerun file (0: none)"""
+    recording: str = "recordings/demo.rrd"
+    """the Rerun file of the recorded episodes"""
 
 
 def main(args: Args):
@@ -54,11 +60,24 @@ def main(args: Args):
     save_json({"summary": summary, "episodes": episodes}, metrics)
 
     print(markdown_table({"explore→dqn": summary}))
+
+    if args.record_episodes:
+        env = make_box_env(**dqn.env_kwargs(train_args), record_to=args.recording)
+        policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
+        try:
+            record_rollouts(env, policy, args.record_episodes, seed=1_000_000)
+        finally:
+            env.close()  # writes the file's footer
     print("outputs:")
-    for what, path in [("checkpoint", result["checkpoint"]), ("training history", os.path.join(result["run_dir"], "history.json")),
-                       ("learning curve (return)", os.path.join(result["run_dir"], "learning_curve.png")),
-                       ("learning curve (success)", curve), ("evaluation metrics", metrics)]:
+    outputs = [("checkpoint", result["checkpoint"]), ("training history", os.path.join(result["run_dir"], "history.json")),
+               ("learning curve (return)", os.path.join(result["run_dir"], "learning_curve.png")),
+               ("learning curve (success)", curve), ("evaluation metrics", metrics)]
+    if args.record_episodes:
+        outputs.append(("recording (Rerun)", args.recording))
+    for what, path in outputs:
         print(f"  {what:26s} {path}")
+    if args.record_episodes:
+        print(f"open the recording with: .venv/bin/rerun {args.recording}")
 
 
 if __name__ == "__main__":

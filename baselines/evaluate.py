@@ -18,7 +18,7 @@ import tyro
 
 from mani_active_vision.agents.dqn import load_q_network
 from mani_active_vision.agents.evaluation import evaluate, make_box_env, markdown_table, save_json, summarize
-from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.agents.policies import make_policy, policy_kwargs
 
 
 @dataclass
@@ -61,23 +61,11 @@ def env_options(args: Args) -> dict:
                 num_objects=args.num_objects, object_set=args.object_set, start_pose=args.start_pose)
 
 
-def policy_kwargs(args: Args) -> dict:
-    uses_dqn = args.policy == "dqn" or (args.policy == "explore" and args.then == "dqn")
-    if uses_dqn and not args.checkpoint:
-        raise ValueError(f"--policy {args.policy} --then {args.then} needs --checkpoint")
-    kwargs = {"checkpoint": args.checkpoint} if uses_dqn else {}
-    if args.policy == "explore":
-        kwargs["then"] = args.then
-    if args.policy in ("random", "explore", "dqn"):
-        kwargs["seed"] = args.seed
-    return kwargs
-
-
 def main(args: Args) -> dict:
     torch.set_num_threads(1)
     options = env_options(args)
     env = make_box_env(**options)
-    policy = make_policy(args.policy, env, **policy_kwargs(args))
+    policy = make_policy(args.policy, env, **policy_kwargs(args.policy, args.then, args.checkpoint, args.seed))
     name = args.policy + (f"→{args.then}" if args.policy == "explore" and args.then != "none" else "")
     episodes = evaluate(env, policy, range(args.seed, args.seed + args.episodes), with_reference=args.reference, desc=name)
     env.close()

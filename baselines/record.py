@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import inspect
 import os
 from dataclasses import dataclass
 
@@ -16,7 +15,7 @@ import torch
 import tyro
 
 import mani_active_vision as mav
-from mani_active_vision.agents.policies import POLICIES, make_policy
+from mani_active_vision.agents.policies import POLICIES, make_policy, policy_kwargs
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.recording import RerunRecorder, record_rollouts
 
@@ -24,16 +23,20 @@ from mani_active_vision.recording import RerunRecorder, record_rollouts
 @dataclass
 class Args:
     policy: str = "random"
-    """policy name, one of mani_active_vision.agents.policies.POLICIES (random; explore, servo, dqn once merged)"""
+    """policy name, one of mani_active_vision.agents.policies.POLICIES: random, explore, servo, dqn"""
     episodes: int = 2
     """episodes to record (100 steps each)"""
     seed: int = 0
     """seed of the first episode; episode k uses seed + k"""
     out: str = "recordings/random.rrd"
     """the .rrd file to write (its folder is created)"""
-    box_source: str | None = None
-    """wrap the env in BoxState(source=...) (ground_truth; fcn once merged): the policy sees the box, the
-    recording also shows the mask the box came from"""
+    then: str = "none"
+    """for --policy explore: the policy that takes over once the target is seen (servo, dqn, random, none)"""
+    checkpoint: str = ""
+    """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn"""
+    box_source: str | None = "ground_truth"
+    """wrap the env in BoxState(source=...) (ground_truth or fcn): the policy sees the box, the recording
+    also shows the mask the box came from; none: the policy sees the raw observation (random only)"""
     image_format: str = "jpeg"
     """wrist RGB as jpeg (small) or raw"""
     jpeg_quality: int = 90
@@ -58,12 +61,11 @@ def main(args: Args):
         sensor_configs=dict(hand_camera=dict(width=args.image_size, height=args.image_size))))
     recorder = RerunRecorder(env, args.out, image_format=args.image_format, jpeg_quality=args.jpeg_quality)
     env = recorder
-    if args.box_source is not None:
+    if args.box_source not in (None, "none"):
         env = BoxState(recorder, source=args.box_source)
         recorder.show_masks_of(env)
     try:
-        seeded = "seed" in inspect.signature(POLICIES[args.policy]).parameters
-        policy = make_policy(args.policy, env, **({"seed": args.seed} if seeded else {}))
+        policy = make_policy(args.policy, env, **policy_kwargs(args.policy, args.then, args.checkpoint, args.seed))
         results = record_rollouts(env, policy, args.episodes, seed=args.seed)
     finally:
         env.close()  # writes the file's footer, also on an exception or Ctrl-C
