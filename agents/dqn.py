@@ -83,7 +83,7 @@ class Args:
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's link-state experiment)"""
     box_source: str = "ground_truth"
-    """where the box comes from: ground_truth (segmentation) or fcn (once the vision branch lands)"""
+    """where the box comes from: ground_truth (segmentation) or fcn (the shipped network)"""
     image_size: int = 64
     """wrist camera side in pixels (the ground-truth box only needs 64)"""
     start_pose: str = "sky"

@@ -2,7 +2,7 @@
 
 Steps/s of: our task, one env, at 128² and 256² `rgb+segmentation` and with `state` observations; the
 PyBullet reference (`pybullet_reference.py`) at the same sizes; 1 and 2 worker processes
-(`make_vec_env`, 128² rgb+segmentation); one env with the FCN box state when the vision module is there.
+(`make_vec_env`, 128² rgb+segmentation); one env with the FCN box state.
 Also time to the first observation, resets and memory growth over reconfigurations
 (`benchmark_env.py`). Ratios are to the reference measured in the same run (timings on a shared machine
 are noisy; the load average is recorded). Writes a markdown table and JSON to `--out`.
