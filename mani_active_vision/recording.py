@@ -115,6 +115,17 @@ class _Recording:
         self._mask_context_logged = False
         self._closed = False
 
+    def _timed_env_step(self, action):
+        """Step the wrapped env, counting its time apart from logging; returns its results and the end time."""
+        self._log_pending_mask()
+        start = time.perf_counter()
+        result = self.env.step(action)
+        stepped = time.perf_counter()
+        self.env_seconds += stepped - start
+        self.env_steps += 1
+        self.step_count += 1
+        return result, stepped
+
     def show_masks_of(self, box_state) -> None:
         """Also log the mask a `BoxState` wrapped around this recorder computed its box from (`last_mask`)."""
         self.mask_source = box_state
@@ -304,13 +315,7 @@ class RerunRecorder(_Recording, gym.Wrapper):
         return obs, info
 
     def step(self, action):
-        self._log_pending_mask()
-        start = time.perf_counter()
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        stepped = time.perf_counter()
-        self.env_seconds += stepped - start
-        self.env_steps += 1
-        self.step_count += 1
+        (obs, reward, terminated, truncated, info), stepped = self._timed_env_step(action)
         self._log_step(action, reward, terminated, truncated, info, range(self.num_envs))
         self._log_observation(obs, info)
         self.log_seconds += time.perf_counter() - stepped
@@ -358,13 +363,7 @@ class RerunVectorRecorder(_Recording, gym.vector.VectorWrapper):
         return obs, info
 
     def step(self, actions):
-        self._log_pending_mask()
-        start = time.perf_counter()
-        obs, reward, terminated, truncated, info = self.env.step(actions)
-        stepped = time.perf_counter()
-        self.env_seconds += stepped - start
-        self.env_steps += 1
-        self.step_count += 1
+        (obs, reward, terminated, truncated, info), stepped = self._timed_env_step(actions)
         restarted = np.flatnonzero(self._restarting)
         self._names = self._target_ids = None
         if len(restarted):
