@@ -115,6 +115,18 @@ class _Recording:
         self._mask_context_logged = False
         self._closed = False
 
+    def _logged_reset(self, **kwargs):
+        """Close the episodes in progress, reset the wrapped env and log every env's new episode."""
+        self._log_pending_mask()
+        self._finish_episodes("reset")
+        obs, info = self.env.reset(**kwargs)
+        start = time.perf_counter()
+        self.step_count += 1
+        self._log_episode_start(obs, range(self.num_envs))
+        self._log_observation(obs, info)
+        self.reset_log_seconds += time.perf_counter() - start
+        return obs, info
+
     def _timed_env_step(self, action):
         """Step the wrapped env, counting its time apart from logging; returns its results and the end time."""
         self._log_pending_mask()
@@ -304,15 +316,7 @@ class RerunRecorder(_Recording, gym.Wrapper):
         self._setup(path, image_format, jpeg_quality, application_id)
 
     def reset(self, **kwargs):
-        self._log_pending_mask()
-        self._finish_episodes("reset")
-        obs, info = self.env.reset(**kwargs)
-        start = time.perf_counter()
-        self.step_count += 1
-        self._log_episode_start(obs, range(self.num_envs))
-        self._log_observation(obs, info)
-        self.reset_log_seconds += time.perf_counter() - start
-        return obs, info
+        return self._logged_reset(**kwargs)
 
     def step(self, action):
         (obs, reward, terminated, truncated, info), stepped = self._timed_env_step(action)
@@ -350,17 +354,9 @@ class RerunVectorRecorder(_Recording, gym.vector.VectorWrapper):
         self._names = self._target_ids = None
 
     def reset(self, **kwargs):
-        self._log_pending_mask()
-        self._finish_episodes("reset")
-        obs, info = self.env.reset(**kwargs)
-        start = time.perf_counter()
-        self.step_count += 1
-        self._names = self._target_ids = None
-        self._log_episode_start(obs, range(self.num_envs))
-        self._log_observation(obs, info)
+        self._names = self._target_ids = None  # new scenes in every sub-env
         self._restarting[:] = False
-        self.reset_log_seconds += time.perf_counter() - start
-        return obs, info
+        return self._logged_reset(**kwargs)
 
     def step(self, actions):
         (obs, reward, terminated, truncated, info), stepped = self._timed_env_step(actions)
