@@ -25,6 +25,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
 WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn.pt")
@@ -84,8 +85,9 @@ class OneShotFCN(nn.Module):
         return self.up1(x)
 
     @torch.inference_mode()
-    def predict(self, scene_rgb, target_rgb) -> torch.Tensor:
-        """Target mask (N, H, W) bool of uint8 scenes (N, H, W, 3) given uint8 target images (N, h, w, 3)."""
+    def predict(self, scene_rgb, target_rgb, largest_component: bool = False) -> torch.Tensor:
+        """Target mask (N, H, W) bool of uint8 scenes (N, H, W, 3) given uint8 target images (N, h, w, 3);
+        with `largest_component`, only each mask's largest connected region is kept (`boxes.largest_component`)."""
         scene = images_to_input(scene_rgb, "scene_rgb")
         target = images_to_input(target_rgb, "target_rgb")
         if len(scene) != len(target):
@@ -103,7 +105,8 @@ class OneShotFCN(nn.Module):
         scores = self(scene, target)
         if (height, width) != (size, size):
             scores = F.interpolate(scores, size=(height, width), mode="bilinear")
-        return scores[:, 1] > scores[:, 0]
+        mask = scores[:, 1] > scores[:, 0]
+        return keep_largest_component(mask) if largest_component else mask
 
 
 def images_to_input(images, name: str = "images") -> torch.Tensor:
@@ -179,11 +182,11 @@ def mask_counts(pred: torch.Tensor, mask: torch.Tensor) -> dict[str, torch.Tenso
     )
 
 
-def dataset_counts(model: OneShotFCN, data: dict, batch_size: int = 64) -> dict[str, torch.Tensor]:
+def dataset_counts(model: OneShotFCN, data: dict, batch_size: int = 64, largest_component: bool = False) -> dict[str, torch.Tensor]:
     """`mask_counts` of the model's masks over a data set (dict of `scene`, `target`, `mask` arrays)."""
     parts = []
     for i in range(0, len(data["mask"]), batch_size):
-        pred = model.predict(data["scene"][i : i + batch_size], data["target"][i : i + batch_size])
+        pred = model.predict(data["scene"][i : i + batch_size], data["target"][i : i + batch_size], largest_component)
         parts.append(mask_counts(pred.cpu(), torch.as_tensor(data["mask"][i : i + batch_size])))
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 

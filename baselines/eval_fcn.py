@@ -32,6 +32,8 @@ class Args:
     """data sets written by collect_segmentation_data.py"""
     out: str = "outputs/fcn_eval.md"
     """where the markdown table is written"""
+    largest_component: bool = False
+    """keep only the largest connected region of each predicted mask (as BoxState does)"""
 
 
 COLUMNS = ("pixel_accuracy", "target_iou", "pooled_target_iou", "false_positive_rate", "box_error", "miss_rate")
@@ -42,7 +44,8 @@ def main(args: Args):
     weights = args.weights or WEIGHTS_PATH
     model, checkpoint = load_checkpoint(weights)
     lines = [
-        f"FCN `{weights}` (trained at {model.config.image_size}², epoch {checkpoint.get('epoch')})",
+        f"FCN `{weights}` (trained at {model.config.image_size}², epoch {checkpoint.get('epoch')})"
+        + (", largest connected component kept" if args.largest_component else ""),
         "",
         "| data set | objects | size | samples (with target) | pixel acc | target IoU | pooled IoU | FP rate (absent) | box error | miss rate | IoU (target ≥1%) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -53,7 +56,7 @@ def main(args: Args):
         data = load_segmentation_data(data_dir)
         started = time.time()
         with torch.inference_mode():
-            counts = dataset_counts(model, data)
+            counts = dataset_counts(model, data, largest_component=args.largest_component)
         metrics = summarize_counts(counts)
         large = counts["true"] >= 0.01 * counts["pixels"]
         metrics["target_iou_large"] = summarize_counts({k: v[large] for k, v in counts.items()})["target_iou"]

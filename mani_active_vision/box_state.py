@@ -2,7 +2,8 @@
 
 `source="ground_truth"` takes the box from the wrist camera's segmentation (needs a `segmentation` obs);
 `source="fcn"` from the one-shot segmentation FCN (`mani_active_vision.agents.fcn`) on the wrist view and
-the target image (needs an `rgb` obs). After every observation `last_mask` holds the mask the box came from.
+the target image (needs an `rgb` obs), keeping the mask's largest connected region only (it halves the box
+error: README "Vision"). After every observation `last_mask` holds the mask the box came from.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ class BoxState(gym.ObservationWrapper):
         base = self.env.unwrapped
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
         if self.source == "fcn":
-            mask = self.fcn.predict(batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"]))
+            mask = self.fcn.predict(batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"]), largest_component=True)
         else:
             seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])
             mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]

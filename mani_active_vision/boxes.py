@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+import scipy.ndimage
 import torch
 
 
@@ -23,6 +25,22 @@ def mask_to_box(mask: torch.Tensor) -> torch.Tensor:
     right = torch.where(cols, col_idx, -1).amax(1)
     box = torch.stack([left / w, top / h, (right - left + 1) / w, (bottom - top + 1) / h], -1).float()
     return torch.where(rows.any(1)[:, None], box, torch.zeros_like(box))
+
+
+def largest_component(mask: torch.Tensor, min_pixels: int = 1) -> torch.Tensor:
+    """Keep, per image of a bool mask (N, H, W), only its largest 8-connected component, and only if it has
+    at least `min_pixels` pixels (else the mask is emptied). Drops the stray specks a segmentation
+    network marks on look-alike objects, which would otherwise stretch or move the box."""
+    if mask.ndim != 3 or mask.dtype != torch.bool:
+        raise ValueError(f"mask must be a bool tensor (N, H, W), got {tuple(mask.shape)} {mask.dtype}")
+    kept = np.zeros(mask.shape, dtype=bool)
+    for i, image in enumerate(mask.cpu().numpy()):
+        labels, count = scipy.ndimage.label(image, structure=np.ones((3, 3)))
+        if count:
+            sizes = np.bincount(labels.ravel())[1:]
+            if sizes.max() >= min_pixels:
+                kept[i] = labels == 1 + sizes.argmax()
+    return torch.from_numpy(kept).to(mask.device)
 
 
 def target_stats(mask: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -128,6 +128,20 @@ def test_boxes_and_metrics_of_hand_made_masks():
     assert metrics["box_error"] == pytest.approx(float((2 / 8 + 2 / 8) / 4 / 2))
 
 
+def test_largest_component_keeps_the_biggest_region_or_nothing():
+    mask = torch.zeros(3, 8, 8, dtype=torch.bool)
+    mask[0, 1:4, 1:4] = True  # 9 pixels
+    mask[0, 6, 6:8] = True  # a 2-pixel speck
+    mask[1, 0, 0] = mask[1, 1, 1] = True  # diagonal neighbours: one 8-connected region of 2
+    kept = mav.boxes.largest_component(mask, min_pixels=2)
+    assert torch.equal(kept[0], mask[0] & ~(torch.arange(8)[:, None] == 6))
+    assert torch.equal(kept[1], mask[1])
+    assert not kept[2].any()
+    assert not mav.boxes.largest_component(mask, min_pixels=10).any()
+    with pytest.raises(ValueError, match="bool tensor"):
+        mav.boxes.largest_component(mask.float())
+
+
 def test_box_state_from_fcn_and_its_last_mask():
     env = BoxState(mav.DiscreteDirections(make_env(start_pose="search", placement="fixed", obs_mode="rgb")), source="fcn")
     obs, info = env.reset(seed=0)
