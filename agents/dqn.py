@@ -23,6 +23,7 @@ Checkpoints: `q_network.pt` holds {"state_dict", "config"} of plain tensors and 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import random
 import time
@@ -94,6 +95,21 @@ class Args:
     """object set: train, unseen or primitives"""
     reward_mode: str = "dense"
     """dense (the target's share of the image: the paper's), normalized_dense or sparse"""
+    terminate_on_success: bool = False
+    """end a training episode at the first success (not in the paper)"""
+    success_bonus: float = 0.0
+    """added to the reward of a step that reaches success (not in the paper)"""
+    refusal_penalty: float = 0.0
+    """subtracted from the reward of a refused step: the arm did not move (not in the paper)"""
+    shaping: str = "none"
+    """none: learn from the env's reward (the paper); share or log_share: learn from γΦ(s') - Φ(s) instead,
+    with Φ the target's share of the image over the success share (capped at 1), or its logarithm scaled to
+    [0, 1] over two decades of share: progress is rewarded, hovering is not (not in the paper)"""
+    mirror_augment: bool = False
+    """also store each transition mirrored left-right (box flipped, left and right swapped): the task is
+    nearly symmetric, so this doubles the experience (not in the paper; box-only state)"""
+    updates_per_step: int = 1
+    """gradient updates per env step (not in the paper)"""
     run_dir: str = "runs/dqn"
     """where the checkpoint, history and learning curve go (a folder per run is made inside)"""
     run_name: str = ""
@@ -156,6 +172,28 @@ def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: f
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
 
 
+MIRRORED_ACTION = np.array([DIRECTIONS.index({"left": "right", "right": "left"}.get(d, d)) for d in DIRECTIONS])
+"""The direction that mirrors each direction left-right: left <-> right, the others unchanged."""
+
+
+def mirror_box(box: np.ndarray) -> np.ndarray:
+    """The box (x, y, w, h) of the left-right mirrored image (zeros, the unseen state, stay zeros)."""
+    x, y, w, h = box[:4]
+    return np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
+
+
+SHAPINGS = ("none", "share", "log_share")
+
+
+def potential(info, success_fraction: float, shaping: str) -> float:
+    """Φ of the state an `info` describes: the target's share of the image over the success share, capped at
+    1 ("share"), or its logarithm mapped from [1/100, 1] to [0, 1] ("log_share"); 0 for "none"."""
+    ratio = min(float(info["target_fraction"].reshape(-1)[0]) / success_fraction, 1.0)
+    if shaping == "log_share":
+        return max(1.0 + math.log10(ratio) / 2.0, 0.0) if ratio > 0 else 0.0
+    return ratio if shaping == "share" else 0.0
+
+
 def save_checkpoint(path: str, q_network: QNetwork, args: Args):
     config = {**dataclasses.asdict(args), "state_dim": q_network.state_dim}
     torch.save({"state_dict": q_network.state_dict(), "config": config}, path)
@@ -187,7 +225,11 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
-    env = env if env is not None else make_box_env(**env_kwargs(args))
+    if args.shaping not in SHAPINGS:
+        raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
+    if args.mirror_augment and args.with_ee_pos:
+        raise ValueError("mirror_augment mirrors the box only: it cannot be combined with with_ee_pos")
+    env = env if env is not None else make_box_env(**env_kwargs(args), terminate_on_success=args.terminate_on_success)
     state_dim = box_array(env.observation_space.sample()).shape[-1]
 
     q_network = QNetwork(state_dim, args.hidden_units)
@@ -199,6 +241,7 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed)
     policy = ExplorePolicy(env, then=learner) if args.explore else learner
     buffer = ReplayBuffer(args.buffer_size, state_dim)
+    success_fraction = env.unwrapped.success_fraction
 
     run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
     os.makedirs(run_dir, exist_ok=True)
@@ -211,6 +254,7 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
         policy.reset(obs, info)
         trajectory.start(info)
         losses, learner_steps, done = [], 0, False
+        share_potential = potential(info, success_fraction, args.shaping)
         while not done:
             learner_acts = bool(policy.update(obs)[0]) if args.explore else True
             action = policy.act(obs, info)
@@ -218,17 +262,23 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
             trajectory.append(reward, info)
             terminated, done = bool(terminated[0]), bool(terminated[0] or truncated[0])
             if learner_acts:  # the script's steps are not the learner's experience
-                buffer.add(box_array(obs)[0], action[0], float(reward[0]), box_array(next_obs)[0], terminated)
+                next_potential = potential(info, success_fraction, args.shaping)
+                learner_reward = args.gamma * next_potential - share_potential if args.shaping != "none" else float(reward[0])
+                learner_reward += args.success_bonus * float(info["success"][0]) - args.refusal_penalty * float(info["refused"][0])
+                buffer.add(box_array(obs)[0], action[0], learner_reward, box_array(next_obs)[0], terminated)
+                if args.mirror_augment:
+                    buffer.add(mirror_box(box_array(obs)[0]), MIRRORED_ACTION[action[0]], learner_reward, mirror_box(box_array(next_obs)[0]), terminated)
                 learner_steps += 1
-            obs = next_obs
+            obs, share_potential = next_obs, potential(info, success_fraction, args.shaping)
             global_step += 1
 
             if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
-                loss = td_loss(q_network, target_network, buffer.sample(args.batch_size, rng), args.gamma, args.double_dqn, args.huber)
-                optimizer.zero_grad()
-                loss.backward()
-                optimizer.step()
-                losses.append(loss.item())
+                for _ in range(args.updates_per_step):
+                    loss = td_loss(q_network, target_network, buffer.sample(args.batch_size, rng), args.gamma, args.double_dqn, args.huber)
+                    optimizer.zero_grad()
+                    loss.backward()
+                    optimizer.step()
+                    losses.append(loss.item())
             if args.target_network and global_step % args.target_update_steps == 0:
                 target_network.load_state_dict(q_network.state_dict())
 

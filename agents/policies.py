@@ -170,12 +170,12 @@ class DQNPolicy:
 POLICIES: dict[str, Callable] = {"random": RandomPolicy, "servo": ServoPolicy, "explore": ExplorePolicy, "dqn": DQNPolicy}
 
 
-def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int = 0) -> dict:
+def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0) -> dict:
     """The keyword arguments `make_policy` needs for `name` (and, for "explore", the policy it hands over to)."""
     uses_dqn = name == "dqn" or (name == "explore" and then == "dqn")
     if uses_dqn and not checkpoint:
         raise ValueError(f"policy {name!r} (then {then!r}) needs a DQN checkpoint")
-    kwargs = {"checkpoint": checkpoint} if uses_dqn else {}
+    kwargs = {"checkpoint": checkpoint, "epsilon": epsilon} if uses_dqn else {}
     if name == "explore":
         kwargs["then"] = then
     if name in ("random", "explore", "dqn"):

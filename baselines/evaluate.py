@@ -29,6 +29,8 @@ class Args:
     """for --policy explore: who takes over once the target is seen (dqn, servo, random, none)"""
     checkpoint: str = ""
     """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn"""
+    epsilon: float = 0.0
+    """for a DQN: the share of random actions (ε-greedy; 0 = greedy)"""
     episodes: int = 20
     """evaluation episodes"""
     seed: int = 1_000_000
@@ -65,7 +67,7 @@ def main(args: Args) -> dict:
     torch.set_num_threads(1)
     options = env_options(args)
     env = make_box_env(**options)
-    policy = make_policy(args.policy, env, **policy_kwargs(args.policy, args.then, args.checkpoint, args.seed))
+    policy = make_policy(args.policy, env, **policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, args.epsilon))
     name = args.policy + (f"→{args.then}" if args.policy == "explore" and args.then != "none" else "")
     episodes = evaluate(env, policy, range(args.seed, args.seed + args.episodes), with_reference=args.reference, desc=name)
     env.close()
