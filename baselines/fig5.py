@@ -33,12 +33,16 @@ CONDITIONS = {
     # not in the paper: the reward capped at the success share (normalized_dense), so that zooming past
     # the success share (until the target touches the border) earns nothing more
     "random_explore_capped_reward": dict(placement="random", explore=True, reward_mode="normalized_dense"),
+    # not in the paper: the `shaped` preset of agents/dqn.py (episode end and bonus at success, log-share
+    # potential shaping, refusal cost, γ 0.99, double DQN, mirrored transitions, 2 updates per step)
+    "random_explore_shaped": dict(placement="random", explore=True, **dqn.SHAPED),
 }
 FIGURES = {
     "a_fixed": ["fixed"],
     "b_exploration": ["random_explore", "random_noexplore"],
     "c_link_state": ["random_explore", "random_explore_link"],
     "d_capped_reward": ["random_explore", "random_explore_capped_reward"],
+    "e_shaped": ["random_explore", "random_explore_shaped"],
 }
 
 

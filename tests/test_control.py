@@ -1,5 +1,6 @@
 """Control: the DQN's pieces, the policies, the metrics and a short end-to-end training run."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -141,3 +142,27 @@ def test_a_short_training_run_end_to_end(tmp_path):
     policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"])
     episodes = evaluate(env, policy, [1_000_000], with_reference=False)
     assert set(episodes[0]) >= {"success", "spl", "steps_to_see", "return"}
+
+
+def test_mirrored_transitions_and_shaping_potentials():
+    assert [mav.DIRECTIONS[a] for a in dqn.MIRRORED_ACTION] == ["right", "left", "forward", "backward", "up", "down"]
+    np.testing.assert_allclose(dqn.mirror_box(np.array([0.1, 0.2, 0.3, 0.4])), [0.6, 0.2, 0.3, 0.4])
+    assert not dqn.mirror_box(np.zeros(4)).any()  # unseen stays unseen
+    info = lambda share: {"target_fraction": torch.tensor([share])}  # noqa: E731
+    assert dqn.potential(info(0.02), 0.05, "none") == 0.0
+    assert dqn.potential(info(0.02), 0.05, "share") == pytest.approx(0.4)
+    assert dqn.potential(info(0.2), 0.05, "share") == 1.0
+    assert [dqn.potential(info(s), 0.05, "log_share") for s in (0.0, 0.0005, 0.005, 0.05, 0.5)] == pytest.approx([0, 0, 0.5, 1, 1], abs=1e-6)
+    with pytest.raises(ValueError, match="shaping='loud' is not one of"):
+        dqn.train(dqn.Args(shaping="loud"), env=None, progress=False)
+
+
+def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
+    env = _box_env(placement="random", max_episode_steps=40, terminate_on_success=True)
+    args = dqn.Args(**dqn.SHAPED, episodes=2, learning_starts=20, run_dir=str(tmp_path))
+    result = dqn.train(args, env=env, progress=False)
+    learner_steps = sum(h["learner_steps"] for h in result["history"])
+    assert learner_steps > 0 and result["transitions"] == 2 * learner_steps
+    assert torch.load(result["checkpoint"], weights_only=True)["config"]["shaping"] == "log_share"
+    with pytest.raises(ValueError, match="cannot be combined with with_ee_pos"):
+        dqn.train(dataclasses.replace(args, with_ee_pos=True), env=env, progress=False)
