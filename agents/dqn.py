@@ -115,9 +115,14 @@ class Args:
     """none: learn from the env's reward (the paper); share or log_share: learn from γΦ(s') - Φ(s) instead,
     with Φ the target's share of the image over the success share (capped at 1), or its logarithm scaled to
     [0, 1] over two decades of share: progress is rewarded, hovering is not (not in the paper)"""
+    with_last_action: bool = False
+    """append a one-hot of the DQN's own previous direction to the state, so that it can tell a step
+    forward from a step back in the same box (not in the paper)"""
     mirror_augment: bool = False
     """also store each transition mirrored left-right (box flipped, left and right swapped): the task is
     nearly symmetric, so this doubles the experience (not in the paper; box-only state)"""
+    n_step: int = 1
+    """n-step returns: bootstrap after n of the learner's steps (not in the paper)"""
     updates_per_step: int = 1
     """gradient updates per env step (not in the paper)"""
     run_dir: str = "runs/dqn"
@@ -146,7 +151,8 @@ def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
 
 
 class ReplayBuffer:
-    """A ring buffer of (state, action, reward, next_state, terminated) transitions."""
+    """A ring buffer of (state, action, reward, next_state, terminated, steps) transitions; `steps` is how
+    many env steps the reward sums (1, or up to n for n-step returns)."""
 
     def __init__(self, capacity: int, state_dim: int):
         self.states = np.zeros((capacity, state_dim), np.float32)
@@ -154,22 +160,41 @@ class ReplayBuffer:
         self.actions = np.zeros(capacity, np.int64)
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
+        self.steps = np.ones(capacity, np.float32)
         self.capacity, self.size, self._next = capacity, 0, 0
 
-    def add(self, state, action, reward, next_state, terminated):
+    def add(self, state, action, reward, next_state, terminated, steps=1):
         i = self._next
         self.states[i], self.actions[i], self.rewards[i] = state, action, reward
-        self.next_states[i], self.terminated[i] = next_state, terminated
+        self.next_states[i], self.terminated[i], self.steps[i] = next_state, terminated, steps
         self._next = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         idx = rng.integers(0, self.size, size=batch_size)
-        return {k: torch.as_tensor(getattr(self, k)[idx]) for k in ("states", "actions", "rewards", "next_states", "terminated")}
+        return {k: torch.as_tensor(getattr(self, k)[idx]) for k in ("states", "actions", "rewards", "next_states", "terminated", "steps")}
+
+
+class NStepWindow:
+    """The learner's last n steps of an episode, turned into n-step transitions (s_t, a_t, Σ_k γ^k r_t+k,
+    s_t+n, terminated, n); at the episode's end the shorter tails are flushed. n = 1: plain transitions."""
+
+    def __init__(self, n: int, gamma: float):
+        self.n, self.gamma, self.pending = n, gamma, []
+
+    def push(self, state, action, reward, next_state, terminated: bool, episode_end: bool) -> list[tuple]:
+        self.pending.append((state, action, reward))
+        out = []
+        while self.pending and (len(self.pending) == self.n or episode_end):
+            discounted = sum(self.gamma**k * r for k, (_, _, r) in enumerate(self.pending))
+            first_state, first_action, _ = self.pending.pop(0)
+            out.append((first_state, first_action, discounted, next_state, terminated, len(self.pending) + 1))
+        return out
 
 
 def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: float, double_dqn: bool = False, huber: bool = False) -> torch.Tensor:
-    """The TD loss of a batch: Q(s, a) against r + γ (1 - terminated) max_a' Q_target(s', a')."""
+    """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
+    (`steps` = 1 where the batch does not say)."""
     with torch.no_grad():
         next_q = target_network(batch["next_states"])
         if double_dqn:
@@ -177,7 +202,8 @@ def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: f
             next_value = next_q.gather(1, next_action).squeeze(1)
         else:
             next_value = next_q.max(-1).values
-        td_target = batch["rewards"] + gamma * (1.0 - batch["terminated"]) * next_value
+        discount = gamma ** batch["steps"] if "steps" in batch else gamma
+        td_target = batch["rewards"] + discount * (1.0 - batch["terminated"]) * next_value
     q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
 
@@ -186,10 +212,12 @@ MIRRORED_ACTION = np.array([DIRECTIONS.index({"left": "right", "right": "left"}.
 """The direction that mirrors each direction left-right: left <-> right, the others unchanged."""
 
 
-def mirror_box(box: np.ndarray) -> np.ndarray:
-    """The box (x, y, w, h) of the left-right mirrored image (zeros, the unseen state, stay zeros)."""
-    x, y, w, h = box[:4]
-    return np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
+def mirror_state(state: np.ndarray) -> np.ndarray:
+    """The state of the left-right mirrored situation: the box (x, y, w, h) of the mirrored image (zeros,
+    the unseen state, stay zeros) and, if present, the last direction's one-hot with left and right swapped."""
+    x, y, w, h = state[:4]
+    box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
+    return np.concatenate([box, state[4:][MIRRORED_ACTION]]) if len(state) > 4 else box
 
 
 SHAPINGS = ("none", "share", "log_share")
@@ -241,7 +269,7 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
     if args.mirror_augment and args.with_ee_pos:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with with_ee_pos")
     env = env if env is not None else make_box_env(**env_kwargs(args), terminate_on_success=args.terminate_on_success)
-    state_dim = box_array(env.observation_space.sample()).shape[-1]
+    state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if args.with_last_action else 0)
 
     q_network = QNetwork(state_dim, args.hidden_units)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate)
@@ -249,9 +277,10 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
     target_network.load_state_dict(q_network.state_dict())
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
-    learner = DQNPolicy(env, q_network=q_network, seed=args.seed)
+    learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
     policy = ExplorePolicy(env, then=learner) if args.explore else learner
     buffer = ReplayBuffer(args.buffer_size, state_dim)
+    window = NStepWindow(args.n_step, args.gamma)
     success_fraction = env.unwrapped.success_fraction
 
     run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
@@ -268,6 +297,7 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
         share_potential = potential(info, success_fraction, args.shaping)
         while not done:
             learner_acts = bool(policy.update(obs)[0]) if args.explore else True
+            state = learner.state(obs)[0]
             action = policy.act(obs, info)
             next_obs, reward, terminated, truncated, info = env.step(action)
             trajectory.append(reward, info)
@@ -276,9 +306,11 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
                 next_potential = potential(info, success_fraction, args.shaping)
                 learner_reward = args.gamma * next_potential - share_potential if args.shaping != "none" else float(reward[0])
                 learner_reward += args.success_bonus * float(info["success"][0]) - args.refusal_penalty * float(info["refused"][0])
-                buffer.add(box_array(obs)[0], action[0], learner_reward, box_array(next_obs)[0], terminated)
-                if args.mirror_augment:
-                    buffer.add(mirror_box(box_array(obs)[0]), MIRRORED_ACTION[action[0]], learner_reward, mirror_box(box_array(next_obs)[0]), terminated)
+                next_state = learner.state(next_obs)[0]
+                for first_state, first_action, *rest in window.push(state, action[0], learner_reward, next_state, terminated, done):
+                    buffer.add(first_state, first_action, *rest)
+                    if args.mirror_augment:
+                        buffer.add(mirror_state(first_state), MIRRORED_ACTION[first_action], rest[0], mirror_state(rest[1]), *rest[2:])
                 learner_steps += 1
             obs, share_potential = next_obs, potential(info, success_fraction, args.shaping)
             global_step += 1

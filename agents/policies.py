@@ -139,16 +139,21 @@ class ExplorePolicy:
 
 class DQNPolicy:
     """A Q-network: argmax Q, or ε-greedy with `epsilon`. From an `agents.dqn` checkpoint file, or (while
-    training) the live `q_network` itself."""
+    training) the live `q_network` itself. With `with_last_action` (read from the checkpoint's config) the
+    network's state is the box followed by a one-hot of this policy's own previous direction (zeros at the
+    start of an episode): `state(obs)`."""
 
-    def __init__(self, env, checkpoint: str | None = None, epsilon: float = 0.0, seed: int = 0, q_network=None):
+    def __init__(self, env, checkpoint: str | None = None, epsilon: float = 0.0, seed: int = 0, q_network=None,
+                 with_last_action: bool = False):
         from mani_active_vision.agents.dqn import load_q_network
 
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
         self.num_envs = env.unwrapped.num_envs
         self.q_network, self.config = (q_network, {}) if q_network is not None else load_q_network(checkpoint)
-        state_dim = box_array(env.observation_space.sample()).shape[-1]
+        self.with_last_action = bool(self.config.get("with_last_action", with_last_action))
+        self.last_action = np.full(self.num_envs, -1)
+        state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if self.with_last_action else 0)
         if state_dim != self.q_network.state_dim:
             raise ValueError(f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
                              f"(with_ee_pos={self.config.get('with_ee_pos')}), the env gives {state_dim}")
@@ -156,14 +161,23 @@ class DQNPolicy:
         self.rng = np.random.default_rng(seed)
 
     def reset(self, obs, info):
-        pass
+        self.last_action[:] = -1
+
+    def state(self, obs) -> np.ndarray:
+        """The network's input (N, state_dim): the box state, and the last direction one-hot if used."""
+        box = box_array(obs)
+        if not self.with_last_action:
+            return box
+        one_hot = (self.last_action[:, None] == np.arange(len(DIRECTIONS))).astype(np.float32)
+        return np.concatenate([box, one_hot], 1)
 
     def act(self, obs, info) -> np.ndarray:
         with torch.no_grad():
-            q = self.q_network(torch.as_tensor(box_array(obs)))
+            q = self.q_network(torch.as_tensor(self.state(obs)))
         action = q.argmax(-1).numpy().astype(np.int64)
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, len(DIRECTIONS), size=int(explore.sum()))
+        self.last_action[:] = action
         return action
 
 

@@ -146,8 +146,10 @@ def test_a_short_training_run_end_to_end(tmp_path):
 
 def test_mirrored_transitions_and_shaping_potentials():
     assert [mav.DIRECTIONS[a] for a in dqn.MIRRORED_ACTION] == ["right", "left", "forward", "backward", "up", "down"]
-    np.testing.assert_allclose(dqn.mirror_box(np.array([0.1, 0.2, 0.3, 0.4])), [0.6, 0.2, 0.3, 0.4])
-    assert not dqn.mirror_box(np.zeros(4)).any()  # unseen stays unseen
+    np.testing.assert_allclose(dqn.mirror_state(np.array([0.1, 0.2, 0.3, 0.4])), [0.6, 0.2, 0.3, 0.4])
+    assert not dqn.mirror_state(np.zeros(4)).any()  # unseen stays unseen
+    last_left = np.array([0.1, 0.2, 0.3, 0.4, 1, 0, 0, 0, 0, 0])  # with the last direction: left -> right
+    np.testing.assert_allclose(dqn.mirror_state(last_left), [0.6, 0.2, 0.3, 0.4, 0, 1, 0, 0, 0, 0])
     info = lambda share: {"target_fraction": torch.tensor([share])}  # noqa: E731
     assert dqn.potential(info(0.02), 0.05, "none") == 0.0
     assert dqn.potential(info(0.02), 0.05, "share") == pytest.approx(0.4)
@@ -166,3 +168,33 @@ def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
     assert torch.load(result["checkpoint"], weights_only=True)["config"]["shaping"] == "log_share"
     with pytest.raises(ValueError, match="cannot be combined with with_ee_pos"):
         dqn.train(dataclasses.replace(args, with_ee_pos=True), env=env, progress=False)
+
+
+def test_dqn_policy_with_last_action_sees_its_own_previous_direction():
+    env = _box_env(placement="fixed")
+    obs, info = env.reset(seed=0)
+    policy = make_policy("dqn", env, q_network=dqn.QNetwork(4 + 6), with_last_action=True)
+    policy.reset(obs, info)
+    assert policy.state(obs).shape == (1, 10) and not policy.state(obs)[0, 4:].any()
+    action = policy.act(obs, info)
+    one_hot = policy.state(obs)[0, 4:]
+    assert one_hot.sum() == 1 and one_hot[action[0]] == 1
+    with pytest.raises(ValueError, match="expects a state of 4 numbers"):
+        make_policy("dqn", env, q_network=dqn.QNetwork(4), with_last_action=True)
+
+
+def test_n_step_window_sums_discounted_rewards_and_flushes_at_the_end():
+    window = dqn.NStepWindow(n=3, gamma=0.5)
+    assert window.push("s0", 0, 1.0, "s1", False, False) == [] and window.push("s1", 1, 2.0, "s2", False, False) == []
+    assert window.push("s2", 2, 4.0, "s3", False, False) == [("s0", 0, 1 + 0.5 * 2 + 0.25 * 4, "s3", False, 3)]
+    tails = window.push("s3", 3, 8.0, "s4", True, True)  # the episode ends: every pending step is flushed
+    assert tails == [("s1", 1, 2 + 0.5 * 4 + 0.25 * 8, "s4", True, 3), ("s2", 2, 4 + 0.5 * 8, "s4", True, 2), ("s3", 3, 8.0, "s4", True, 1)]
+    assert window.pending == []
+    batch = {"states": torch.zeros(2, 4), "actions": torch.zeros(2, dtype=torch.long), "rewards": torch.tensor([1.0, 1.0]),
+             "next_states": torch.zeros(2, 4), "terminated": torch.zeros(2), "steps": torch.tensor([1.0, 3.0])}
+    q = dqn.QNetwork(4)
+    with torch.no_grad():
+        value = q(torch.zeros(1, 4)).max().item()
+        expected = torch.tensor([1 + 0.9 * value, 1 + 0.9**3 * value])
+        q_sa = q(torch.zeros(2, 4))[:, 0]
+    assert dqn.td_loss(q, q, batch, 0.9).item() == pytest.approx(torch.nn.functional.mse_loss(q_sa, expected).item())
