@@ -23,8 +23,10 @@ but changes what the learner learns from, because with the paper's reward the DQ
 focus in 100 episodes (0% success, docs/results.md): a training episode ends at the first success, which
 earns a bonus of 1; the reward is potential-based shaping γΦ(s') - Φ(s) on the log of the target's share
 (progress pays, hovering does not); a refused step costs 0.1; γ 0.99 (success lies 20-40 steps away);
-double DQN; every transition is also stored mirrored left-right; 2 updates per env step. Evaluation is
-always on the task as it is (no episode end at success, the env's own reward).
+5-step returns; the DQN's own previous direction (one-hot) joins the box in its state, so that it can
+break forward/back and left/right cycles; double DQN; every transition is also stored mirrored
+left-right; 2 updates per env step. Evaluation is always on the task as it is (no episode end at
+success, the env's own reward).
 Checkpoints: `q_network.pt` holds {"state_dict", "config"} of plain tensors and numbers, so it loads with
 `torch.load(path, weights_only=True)`; `load_q_network(path)` rebuilds the network.
 """
@@ -339,7 +341,7 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
 
 
 SHAPED = dict(terminate_on_success=True, success_bonus=1.0, refusal_penalty=0.1, shaping="log_share", gamma=0.99,
-              double_dqn=True, mirror_augment=True, updates_per_step=2)
+              double_dqn=True, mirror_augment=True, updates_per_step=2, with_last_action=True, n_step=5)
 """The options of the `shaped` preset (the paper's learner with our learner's reward; see the module docstring)."""
 
 PRESETS = {

@@ -34,7 +34,8 @@ CONDITIONS = {
     # the success share (until the target touches the border) earns nothing more
     "random_explore_capped_reward": dict(placement="random", explore=True, reward_mode="normalized_dense"),
     # not in the paper: the `shaped` preset of agents/dqn.py (episode end and bonus at success, log-share
-    # potential shaping, refusal cost, γ 0.99, double DQN, mirrored transitions, 2 updates per step)
+    # potential shaping, refusal cost, γ 0.99, 5-step returns, last direction in the state, double DQN,
+    # mirrored transitions, 2 updates per step)
     "random_explore_shaped": dict(placement="random", explore=True, **dqn.SHAPED),
 }
 FIGURES = {
