@@ -20,15 +20,17 @@ Deviations from / additions to the paper (it does not state the rest):
 
 The preset `shaped` (`SHAPED`) keeps the paper's network, optimiser, buffer, 100 episodes and ε schedule
 but changes what the learner learns from, because with the paper's reward the DQN did not learn to
-focus in 100 episodes (0% success, docs/results.md): a training episode ends at the first success, which
-earns a bonus of 1; the reward is potential-based shaping γΦ(s') - Φ(s) on the log of the target's share
-(progress pays, hovering does not); a refused step costs 0.1; γ 0.99 (success lies 20-40 steps away);
-5-step returns; the DQN's own previous direction (one-hot) joins the box in its state, so that it can
-break forward/back and left/right cycles; double DQN; every transition is also stored mirrored
-left-right; 2 updates per env step. Evaluation is always on the task as it is (no episode end at
-success, the env's own reward).
-Checkpoints: `q_network.pt` holds {"state_dict", "config"} of plain tensors and numbers, so it loads with
-`torch.load(path, weights_only=True)`; `load_q_network(path)` rebuilds the network.
+focus in 100 episodes (0% success, docs/results.md):
+- a training episode ends at the first success, which earns a bonus of 1;
+- potential-based shaping 5 (γΦ(s') - Φ(s)) replaces the env's reward, with Φ the mean of the log of the
+  target's share (over the success share, two decades mapped to [0, 1]) and how centred it is: getting
+  closer and centring pay, hovering does not (the optimal policy is unchanged by such shaping);
+- a step costs 0.02 and a refused step 0.1 more, so that cycling is never free;
+- γ 0.99 (success lies 20-40 steps away) with 5-step returns;
+- the DQN's own previous direction (one-hot) joins the box in its state, so that it can tell a step
+  forward from a step back in the same box;
+- double DQN; every transition also stored mirrored left-right; 2 updates per env step.
+Evaluation is always on the task as it is (no episode end at success, the env's own reward).
 """
 
 from __future__ import annotations
@@ -113,10 +115,14 @@ class Args:
     """added to the reward of a step that reaches success (not in the paper)"""
     refusal_penalty: float = 0.0
     """subtracted from the reward of a refused step: the arm did not move (not in the paper)"""
+    step_cost: float = 0.0
+    """subtracted from the reward of every step: cycling costs, reaching success sooner pays (not in the paper)"""
     shaping: str = "none"
     """none: learn from the env's reward (the paper); share or log_share: learn from γΦ(s') - Φ(s) instead,
     with Φ the target's share of the image over the success share (capped at 1), or its logarithm scaled to
     [0, 1] over two decades of share: progress is rewarded, hovering is not (not in the paper)"""
+    shaping_scale: float = 1.0
+    """Φ is multiplied by this (a larger scale: a stronger signal early on; the optimal policy is the same)"""
     with_last_action: bool = False
     """append a one-hot of the DQN's own previous direction to the state, so that it can tell a step
     forward from a step back in the same box (not in the paper)"""
@@ -222,16 +228,22 @@ def mirror_state(state: np.ndarray) -> np.ndarray:
     return np.concatenate([box, state[4:][MIRRORED_ACTION]]) if len(state) > 4 else box
 
 
-SHAPINGS = ("none", "share", "log_share")
+SHAPINGS = ("none", "share", "log_share", "log_share_centred")
 
 
 def potential(info, success_fraction: float, shaping: str) -> float:
     """Φ of the state an `info` describes: the target's share of the image over the success share, capped at
-    1 ("share"), or its logarithm mapped from [1/100, 1] to [0, 1] ("log_share"); 0 for "none"."""
+    1 ("share"), or its logarithm mapped from [1/100, 1] to [0, 1] ("log_share"), or the mean of that and
+    how centred the target is (1 at the centre, 0 at half the image width away or when unseen:
+    "log_share_centred"); 0 for "none"."""
     ratio = min(float(info["target_fraction"].reshape(-1)[0]) / success_fraction, 1.0)
+    if shaping == "share" or shaping == "none":
+        return ratio if shaping == "share" else 0.0
+    log_share = max(1.0 + math.log10(ratio) / 2.0, 0.0) if ratio > 0 else 0.0
     if shaping == "log_share":
-        return max(1.0 + math.log10(ratio) / 2.0, 0.0) if ratio > 0 else 0.0
-    return ratio if shaping == "share" else 0.0
+        return log_share
+    centred = max(1.0 - float(info["target_center_offset"].reshape(-1)[0]) / 0.5, 0.0)  # the offset is inf when unseen
+    return 0.5 * (log_share + centred)
 
 
 def save_checkpoint(path: str, q_network: QNetwork, args: Args):
@@ -296,7 +308,7 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
         policy.reset(obs, info)
         trajectory.start(info)
         losses, learner_steps, done = [], 0, False
-        share_potential = potential(info, success_fraction, args.shaping)
+        share_potential = args.shaping_scale * potential(info, success_fraction, args.shaping)
         while not done:
             learner_acts = bool(policy.update(obs)[0]) if args.explore else True
             state = learner.state(obs)[0]
@@ -305,16 +317,16 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
             trajectory.append(reward, info)
             terminated, done = bool(terminated[0]), bool(terminated[0] or truncated[0])
             if learner_acts:  # the script's steps are not the learner's experience
-                next_potential = potential(info, success_fraction, args.shaping)
+                next_potential = args.shaping_scale * potential(info, success_fraction, args.shaping)
                 learner_reward = args.gamma * next_potential - share_potential if args.shaping != "none" else float(reward[0])
-                learner_reward += args.success_bonus * float(info["success"][0]) - args.refusal_penalty * float(info["refused"][0])
+                learner_reward += args.success_bonus * float(info["success"][0]) - args.refusal_penalty * float(info["refused"][0]) - args.step_cost
                 next_state = learner.state(next_obs)[0]
                 for first_state, first_action, *rest in window.push(state, action[0], learner_reward, next_state, terminated, done):
                     buffer.add(first_state, first_action, *rest)
                     if args.mirror_augment:
                         buffer.add(mirror_state(first_state), MIRRORED_ACTION[first_action], rest[0], mirror_state(rest[1]), *rest[2:])
                 learner_steps += 1
-            obs, share_potential = next_obs, potential(info, success_fraction, args.shaping)
+            obs, share_potential = next_obs, args.shaping_scale * potential(info, success_fraction, args.shaping)
             global_step += 1
 
             if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
@@ -340,8 +352,8 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
     return {"run_dir": run_dir, "checkpoint": checkpoint, "history": history, "transitions": buffer.size}
 
 
-SHAPED = dict(terminate_on_success=True, success_bonus=1.0, refusal_penalty=0.1, shaping="log_share", gamma=0.99,
-              double_dqn=True, mirror_augment=True, updates_per_step=2, with_last_action=True, n_step=5)
+SHAPED = dict(terminate_on_success=True, success_bonus=1.0, refusal_penalty=0.1, step_cost=0.02, shaping="log_share_centred",
+              shaping_scale=5.0, gamma=0.99, n_step=5, with_last_action=True, double_dqn=True, mirror_augment=True, updates_per_step=2)
 """The options of the `shaped` preset (the paper's learner with our learner's reward; see the module docstring)."""
 
 PRESETS = {

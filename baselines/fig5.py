@@ -33,9 +33,9 @@ CONDITIONS = {
     # not in the paper: the reward capped at the success share (normalized_dense), so that zooming past
     # the success share (until the target touches the border) earns nothing more
     "random_explore_capped_reward": dict(placement="random", explore=True, reward_mode="normalized_dense"),
-    # not in the paper: the `shaped` preset of agents/dqn.py (episode end and bonus at success, log-share
-    # potential shaping, refusal cost, γ 0.99, 5-step returns, last direction in the state, double DQN,
-    # mirrored transitions, 2 updates per step)
+    # not in the paper: the `shaped` preset of agents/dqn.py (see its docstring: episode end and bonus at
+    # success, potential shaping on share and centring, step and refusal costs, γ 0.99, 5-step returns,
+    # the last direction in the state, double DQN, mirrored transitions, 2 updates per step)
     "random_explore_shaped": dict(placement="random", explore=True, **dqn.SHAPED),
 }
 FIGURES = {

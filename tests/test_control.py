@@ -155,6 +155,10 @@ def test_mirrored_transitions_and_shaping_potentials():
     assert dqn.potential(info(0.02), 0.05, "share") == pytest.approx(0.4)
     assert dqn.potential(info(0.2), 0.05, "share") == 1.0
     assert [dqn.potential(info(s), 0.05, "log_share") for s in (0.0, 0.0005, 0.005, 0.05, 0.5)] == pytest.approx([0, 0, 0.5, 1, 1], abs=1e-6)
+    seen = {"target_fraction": torch.tensor([0.005]), "target_center_offset": torch.tensor([0.1])}
+    assert dqn.potential(seen, 0.05, "log_share_centred") == pytest.approx(0.5 * (0.5 + 0.8))
+    unseen = {"target_fraction": torch.tensor([0.0]), "target_center_offset": torch.tensor([float("inf")])}
+    assert dqn.potential(unseen, 0.05, "log_share_centred") == 0.0
     with pytest.raises(ValueError, match="shaping='loud' is not one of"):
         dqn.train(dqn.Args(shaping="loud"), env=None, progress=False)
 
