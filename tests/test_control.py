@@ -169,7 +169,8 @@ def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
     result = dqn.train(args, env=env, progress=False)
     learner_steps = sum(h["learner_steps"] for h in result["history"])
     assert learner_steps > 0 and result["transitions"] == 2 * learner_steps
-    assert torch.load(result["checkpoint"], weights_only=True)["config"]["shaping"] == "log_share"
+    config = torch.load(result["checkpoint"], weights_only=True)["config"]
+    assert {k: config[k] for k in dqn.SHAPED} == dqn.SHAPED and config["state_dim"] == 4 + 6  # box + last direction
     with pytest.raises(ValueError, match="cannot be combined with with_ee_pos"):
         dqn.train(dataclasses.replace(args, with_ee_pos=True), env=env, progress=False)
 
