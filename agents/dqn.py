@@ -316,17 +316,17 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
             next_obs, reward, terminated, truncated, info = env.step(action)
             trajectory.append(reward, info)
             terminated, done = bool(terminated[0]), bool(terminated[0] or truncated[0])
+            next_potential = args.shaping_scale * potential(info, success_fraction, args.shaping)
             if learner_acts:  # the script's steps are not the learner's experience
-                next_potential = args.shaping_scale * potential(info, success_fraction, args.shaping)
                 learner_reward = args.gamma * next_potential - share_potential if args.shaping != "none" else float(reward[0])
                 learner_reward += args.success_bonus * float(info["success"][0]) - args.refusal_penalty * float(info["refused"][0]) - args.step_cost
                 next_state = learner.state(next_obs)[0]
-                for first_state, first_action, *rest in window.push(state, action[0], learner_reward, next_state, terminated, done):
-                    buffer.add(first_state, first_action, *rest)
+                for s0, a0, discounted, s_n, ended, steps in window.push(state, action[0], learner_reward, next_state, terminated, done):
+                    buffer.add(s0, a0, discounted, s_n, ended, steps)
                     if args.mirror_augment:
-                        buffer.add(mirror_state(first_state), MIRRORED_ACTION[first_action], rest[0], mirror_state(rest[1]), *rest[2:])
+                        buffer.add(mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps)
                 learner_steps += 1
-            obs, share_potential = next_obs, args.shaping_scale * potential(info, success_fraction, args.shaping)
+            obs, share_potential = next_obs, next_potential
             global_step += 1
 
             if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
