@@ -37,6 +37,7 @@ CONDITIONS = {
     # success, potential shaping on share and centring, step and refusal costs, γ 0.99, 5-step returns,
     # the last direction in the state, double DQN, mirrored transitions, 2 updates per step)
     "random_explore_shaped": dict(placement="random", explore=True, **dqn.SHAPED),
+    "fixed_shaped": dict(placement="fixed", explore=False, **dqn.SHAPED),
 }
 FIGURES = {
     "a_fixed": ["fixed"],
@@ -44,6 +45,7 @@ FIGURES = {
     "c_link_state": ["random_explore", "random_explore_link"],
     "d_capped_reward": ["random_explore", "random_explore_capped_reward"],
     "e_shaped": ["random_explore", "random_explore_shaped"],
+    "f_fixed_shaped": ["fixed", "fixed_shaped"],
 }
 
 
