@@ -32,6 +32,8 @@ class Args:
     """scene k is reset with seed + k: keep splits' seed ranges apart"""
     scenes_per_shard: int = 50
     """scenes per .npz shard"""
+    workers: int = 1
+    """rendering processes (shards are spread over them; the data do not depend on it)"""
 
 
 def main(args: Args):
@@ -40,7 +42,7 @@ def main(args: Args):
         object_set=args.object_set, num_scenes=args.num_scenes, views_per_scene=args.views_per_scene,
         image_size=args.image_size, seed=args.seed,
     )
-    manifest = collect_segmentation_data(args.out_dir, config, scenes_per_shard=args.scenes_per_shard)
+    manifest = collect_segmentation_data(args.out_dir, config, scenes_per_shard=args.scenes_per_shard, workers=args.workers)
     summary = {k: manifest[k] for k in ("num_samples", "share_with_target", "target_pixel_share", "seconds")}
     print(f"{args.out_dir}: {json.dumps(summary)}")
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -123,32 +124,66 @@ def render_scene_views(env: gym.Env, scene_seed: int, rng: np.random.Generator, 
     )
 
 
-def collect_segmentation_data(out_dir: str, config: SegmentationDataConfig, scenes_per_shard: int = 50, progress: bool = True) -> dict:
-    """Render a data set into `out_dir` (shards + manifest.json); returns the manifest."""
+def render_shard(env: gym.Env, out_dir: str, config: SegmentationDataConfig, index: int, scenes_per_shard: int, on_scene=None) -> dict:
+    """Render shard `index` (scenes `index * scenes_per_shard` ...) into `out_dir`; returns its manifest entry.
+
+    A shard depends only on (config, index): shards made by different processes are the same as made by one."""
+    first = index * scenes_per_shard
+    parts = []
+    for k in range(first, min(first + scenes_per_shard, config.num_scenes)):
+        parts.append(render_scene_views(env, config.seed + k, np.random.default_rng([config.seed, k]), config))
+        if on_scene is not None:
+            on_scene()
+    shard = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    name = f"shard_{index:05d}.npz"
+    np.savez_compressed(os.path.join(out_dir, name), **shard)
+    return dict(file=name, num_samples=len(shard["mask"]), num_scenes=len(parts),
+                with_target=int(shard["mask"].any((1, 2)).sum()), target_pixels=int(shard["mask"].sum()))
+
+
+_worker_env = None
+
+
+def _init_worker(config: SegmentationDataConfig) -> None:
+    global _worker_env
+    torch.set_num_threads(1)
+    _worker_env = make_data_env(config)
+
+
+def _render_shard_in_worker(job: tuple) -> dict:
+    return render_shard(_worker_env, *job)
+
+
+def collect_segmentation_data(out_dir: str, config: SegmentationDataConfig, scenes_per_shard: int = 50, workers: int = 1, progress: bool = True) -> dict:
+    """Render a data set into `out_dir` (shards + manifest.json) with `workers` processes; returns the manifest.
+
+    The data do not depend on `workers` (each shard is rendered from its own scene seeds)."""
+    if workers < 1:
+        raise ValueError(f"workers={workers} must be at least 1")
     os.makedirs(out_dir, exist_ok=True)
-    env = make_data_env(config)
+    num_shards = math.ceil(config.num_scenes / scenes_per_shard)
     start = time.time()
-    shards, buffer, num_samples, num_with_target, target_pixels = [], [], 0, 0, 0
-    try:
-        for k in tqdm(range(config.num_scenes), desc=f"render {config.object_set}", disable=not progress):
-            rng = np.random.default_rng([config.seed, k])
-            buffer.append(render_scene_views(env, config.seed + k, rng, config))
-            if len(buffer) == scenes_per_shard or k == config.num_scenes - 1:
-                shard = {key: np.concatenate([b[key] for b in buffer]) for key in buffer[0]}
-                name = f"shard_{len(shards):05d}.npz"
-                np.savez_compressed(os.path.join(out_dir, name), **shard)
-                shards.append(dict(file=name, num_samples=len(shard["mask"])))
-                num_samples += len(shard["mask"])
-                num_with_target += int(shard["mask"].any((1, 2)).sum())
-                target_pixels += int(shard["mask"].sum())
-                buffer = []
-    finally:
-        env.close()
+    with tqdm(total=config.num_scenes, desc=f"render {config.object_set}", unit="scene", disable=not progress) as bar:
+        if workers == 1:
+            env = make_data_env(config)
+            try:
+                shards = [render_shard(env, out_dir, config, i, scenes_per_shard, on_scene=lambda: bar.update(1)) for i in range(num_shards)]
+            finally:
+                env.close()
+        else:
+            jobs = [(out_dir, config, i, scenes_per_shard) for i in range(num_shards)]
+            shards = []
+            with multiprocessing.get_context("spawn").Pool(workers, _init_worker, (config,)) as pool:
+                for shard in pool.imap(_render_shard_in_worker, jobs):  # in order: the manifest lists shards by index
+                    shards.append(shard)
+                    bar.update(shard["num_scenes"])
+    num_samples = sum(s["num_samples"] for s in shards)
     manifest = dict(
-        config=asdict(config), shards=shards, num_samples=num_samples,
-        share_with_target=num_with_target / max(num_samples, 1),
-        target_pixel_share=target_pixels / max(num_samples * config.image_size**2, 1),
-        seconds=round(time.time() - start, 1),
+        config=asdict(config), shards=[dict(file=s["file"], num_samples=s["num_samples"]) for s in shards],
+        num_samples=num_samples,
+        share_with_target=sum(s["with_target"] for s in shards) / max(num_samples, 1),
+        target_pixel_share=sum(s["target_pixels"] for s in shards) / max(num_samples * config.image_size**2, 1),
+        seconds=round(time.time() - start, 1), workers=workers,
     )
     with open(os.path.join(out_dir, "manifest.json"), "w") as f:
         json.dump(manifest, f, indent=2)
