@@ -40,6 +40,10 @@ class FCNConfig:
     """scene side the model is trained at; `predict` resizes other sizes to it"""
     target_size: int = 64
     """target image side (the task's `target_image_size`)"""
+    full_res_channels: int = 0
+    """0: the last transposed convolution gives the class scores; > 0: it gives this many features, a 3×3
+    convolution of the scene at full resolution is added to them (sharper edges on small targets) and a
+    3×3 convolution gives the scores"""
 
 
 def _conv(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
@@ -66,7 +70,12 @@ class OneShotFCN(nn.Module):
         self.fuse = nn.ModuleList([_fuse(c1), _fuse(c2), _fuse(c3)])
         self.up3 = nn.ConvTranspose2d(c3, c2, 4, 2, 1)  # 1/8 -> 1/4
         self.up2 = nn.ConvTranspose2d(c2, c1, 4, 2, 1)  # 1/4 -> 1/2
-        self.up1 = nn.ConvTranspose2d(c1, 2, 4, 2, 1)  # 1/2 -> 1: the two class scores
+        f = config.full_res_channels
+        self.up1 = nn.ConvTranspose2d(c1, f or 2, 4, 2, 1)  # 1/2 -> 1: the two class scores (or f features)
+        if f:
+            self.full_res = _conv(3, f)
+            self.head = nn.Conv2d(f, 2, 3, 1, 1)
+        self._cached_target: tuple | None = None  # (weights' versions, target, its features): `predict`'s cache
 
     def encode(self, images: torch.Tensor) -> list[torch.Tensor]:
         features = []
@@ -75,14 +84,34 @@ class OneShotFCN(nn.Module):
             features.append(images)
         return features
 
-    def forward(self, scene: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    def target_features(self, target: torch.Tensor) -> list[torch.Tensor]:
+        """The target's features at the three depths, global-max-pooled: (N, C, 1, 1) each."""
+        return [t.amax((2, 3), keepdim=True) for t in self.encode(target)]
+
+    def segment(self, scene: torch.Tensor, target_features: list[torch.Tensor]) -> torch.Tensor:
+        """Class scores (N, 2, H, W) of scenes given their targets' `target_features`."""
         fused = []
-        for fuse, s, t in zip(self.fuse, self.encode(scene), self.encode(target)):
-            pooled = t.amax((2, 3), keepdim=True).expand(-1, -1, *s.shape[2:])
-            fused.append(fuse(torch.cat([s, pooled], 1)))
+        for fuse, s, t in zip(self.fuse, self.encode(scene), target_features):
+            fused.append(fuse(torch.cat([s, t.expand(-1, -1, *s.shape[2:])], 1)))
         x = F.relu(self.up3(fused[2]) + fused[1])
         x = F.relu(self.up2(x) + fused[0])
-        return self.up1(x)
+        x = self.up1(x)
+        if self.config.full_res_channels:
+            x = self.head(F.relu(x + self.full_res(scene)))
+        return x
+
+    def forward(self, scene: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        return self.segment(scene, self.target_features(target))
+
+    def _target_features_cached(self, target: torch.Tensor) -> list[torch.Tensor]:
+        """`target_features`, reusing the last call's when the target images and the weights are the same (an
+        episode shows one target image at every step: its features are computed once). Any in-place change
+        of a parameter (an optimiser step, `load_state_dict`) bumps its `_version`, which ends the cache."""
+        versions = tuple(p._version for p in self.parameters())
+        cached = self._cached_target
+        if cached is None or cached[0] != versions or cached[1].shape != target.shape or not torch.equal(cached[1], target):
+            self._cached_target = cached = (versions, target.clone(), self.target_features(target))
+        return cached[2]
 
     @torch.inference_mode()
     def predict(self, scene_rgb, target_rgb, largest_component: bool = False) -> torch.Tensor:
@@ -102,7 +131,7 @@ class OneShotFCN(nn.Module):
             scene = F.interpolate(scene, size=(size, size), mode="area" if height > size else "bilinear")
         if target.shape[2:] != (self.config.target_size,) * 2:
             target = F.interpolate(target, size=(self.config.target_size,) * 2, mode="bilinear")
-        scores = self(scene, target)
+        scores = self.segment(scene, self._target_features_cached(target))
         if (height, width) != (size, size):
             scores = F.interpolate(scores, size=(height, width), mode="bilinear")
         mask = scores[:, 1] > scores[:, 0]
@@ -121,6 +150,13 @@ def images_to_input(images, name: str = "images") -> torch.Tensor:
         hint = " (channels-first? pass channels-last (N, H, W, 3))" if images.ndim == 4 and images.shape[1] == 3 else ""
         raise ValueError(f"{name} must have shape (N, H, W, 3), got {tuple(images.shape)}{hint}")
     return images.permute(0, 3, 1, 2).float().div_(255).sub_(0.5)
+
+
+def flip_horizontally(*images: torch.Tensor, where: torch.Tensor) -> list[torch.Tensor]:
+    """Each of `images` (N, ..., W) with the samples where `where` (N,) bool is true mirrored left-right:
+    augmentation that flips a scene, its mask and its target image together (a mirrored scene holds the
+    mirrored target)."""
+    return [torch.where(where.view((-1,) + (1,) * (x.ndim - 1)), x.flip(-1), x) for x in images]
 
 
 # ---------------------------------------------------------------- checkpoints
@@ -168,6 +204,18 @@ def class_weights(target_pixel_share: float, power: float = 0.5) -> torch.Tensor
     false positives), scaled so that background has weight 1."""
     share = min(max(target_pixel_share, 1e-4), 0.5)
     return torch.tensor([1.0, ((1 - share) / share) ** power])
+
+
+def soft_iou_loss(scores: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """1 - soft IoU (target probability vs true mask), averaged over the samples that contain the target
+    (0 if none do): every sample counts the same, whatever its target's size, as in the per-sample IoU."""
+    present = mask.flatten(1).any(1)
+    if not present.any():
+        return scores.sum() * 0
+    p = scores[present].softmax(1)[:, 1]
+    y = mask[present].float()
+    intersection = (p * y).sum((1, 2))
+    return (1 - intersection / (p + y - p * y).sum((1, 2)).clamp_min(1e-6)).mean()
 
 
 def mask_counts(pred: torch.Tensor, mask: torch.Tensor) -> dict[str, torch.Tensor]:
