@@ -28,7 +28,8 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import (
-    FCNConfig, OneShotFCN, class_weights, dataset_counts, images_to_input, load_checkpoint, save_checkpoint, summarize_counts,
+    FCNConfig, OneShotFCN, class_weights, dataset_counts, flip_horizontally, images_to_input, load_checkpoint, save_checkpoint,
+    soft_iou_loss, summarize_counts,
 )
 from mani_active_vision.segmentation_data import load_segmentation_data
 
@@ -47,8 +48,14 @@ class Args:
     """Adam learning rate at the start; cosine decay to lr/20 over `epochs`"""
     weight_power: float = 0.5
     """target class weight = (inverse pixel frequency) ** weight_power; 0 = plain cross-entropy"""
+    iou_loss_weight: float = 0.0
+    """weight of a soft-IoU loss (`soft_iou_loss`: every sample with the target counts the same) added to the cross-entropy"""
+    flip: bool = False
+    """augment: mirror half the samples left-right (scene, mask and target image together)"""
     channels: tuple[int, int, int] = (16, 32, 64)
     """encoder channels at 1/2, 1/4, 1/8 of the image side"""
+    full_res_channels: int = 0
+    """features of the full-resolution skip (`FCNConfig.full_res_channels`; 0: none)"""
     seed: int = 0
     """torch and shuffling seed"""
     threads: int = 1
@@ -62,7 +69,7 @@ def plot_curves(history: list[dict], path: str) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     axes[0].plot(epochs, [h["train_loss"] for h in history], label="train")
     axes[0].plot(epochs, [h["val_loss"] for h in history], label="val")
-    axes[0].set_title("weighted cross-entropy")
+    axes[0].set_title("loss (weighted cross-entropy + soft IoU)" if history[-1].get("iou_loss_weight") else "weighted cross-entropy")
     axes[1].plot(epochs, [h["val"]["target_iou"] for h in history], label="target IoU (per sample)")
     axes[1].plot(epochs, [h["val"]["pooled_target_iou"] for h in history], label="target IoU (pooled)")
     axes[1].plot(epochs, [h["val"]["pixel_accuracy"] for h in history], label="pixel accuracy")
@@ -91,7 +98,8 @@ def main(args: Args):
     print(f"train {len(train['mask'])} samples, val {len(val['mask'])}; {image_size}² scenes; target pixels {target_share:.4f} "
           f"-> class weights {weights.tolist()}")
 
-    model = OneShotFCN(FCNConfig(channels=args.channels, image_size=image_size, target_size=train["target"].shape[1]))
+    model = OneShotFCN(FCNConfig(channels=args.channels, image_size=image_size, target_size=train["target"].shape[1],
+                                 full_res_channels=args.full_res_channels))
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     history, start_epoch, best_iou = [], 0, -1.0
     last_path, best_path = os.path.join(args.run_dir, "last.pt"), os.path.join(args.run_dir, "best.pt")
@@ -105,6 +113,10 @@ def main(args: Args):
         print(f"resumed from {last_path} after epoch {start_epoch}")
     print(f"parameters: {sum(p.numel() for p in model.parameters())}")
 
+    def loss_fn(scores: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        loss = F.cross_entropy(scores, mask.long(), weight=weights)
+        return loss + args.iou_loss_weight * soft_iou_loss(scores, mask) if args.iou_loss_weight else loss
+
     num_train = len(train["mask"])
     steps_per_epoch = math.ceil(num_train / args.batch_size)
     for epoch in range(start_epoch, args.epochs):
@@ -116,8 +128,10 @@ def main(args: Args):
         losses, started = [], time.time()
         for step in tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{args.epochs}", leave=False):
             idx = np.sort(order[step * args.batch_size : (step + 1) * args.batch_size])
-            scores = model(images_to_input(train["scene"][idx]), images_to_input(train["target"][idx]))
-            loss = F.cross_entropy(scores, torch.from_numpy(train["mask"][idx]).long(), weight=weights)
+            scene, target, mask = images_to_input(train["scene"][idx]), images_to_input(train["target"][idx]), torch.from_numpy(train["mask"][idx])
+            if args.flip:
+                scene, target, mask = flip_horizontally(scene, target, mask, where=torch.from_numpy(rng.random(len(idx)) < 0.5))
+            loss = loss_fn(model(scene, target), mask)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -127,12 +141,12 @@ def main(args: Args):
         model.eval()
         with torch.inference_mode():
             val_losses = [
-                F.cross_entropy(model(images_to_input(val["scene"][i : i + 128]), images_to_input(val["target"][i : i + 128])),
-                                torch.from_numpy(val["mask"][i : i + 128]).long(), weight=weights).item()
+                loss_fn(model(images_to_input(val["scene"][i : i + 128]), images_to_input(val["target"][i : i + 128])),
+                        torch.from_numpy(val["mask"][i : i + 128])).item()
                 for i in range(0, len(val["mask"]), 128)
             ]
         metrics = summarize_counts(dataset_counts(model, val))
-        history.append(dict(epoch=epoch + 1, lr=lr, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
+        history.append(dict(epoch=epoch + 1, lr=lr, iou_loss_weight=args.iou_loss_weight, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
                             val=metrics, train_seconds=round(train_seconds, 1)))
         print(f"epoch {epoch + 1:2d} lr {lr:.2e} train loss {np.mean(losses):.4f} val loss {np.mean(val_losses):.4f} "
               f"val IoU {metrics['target_iou']:.3f} (pooled {metrics['pooled_target_iou']:.3f}) "

@@ -8,11 +8,13 @@ from conftest import make_env
 
 import mani_active_vision as mav
 from mani_active_vision.agents.fcn import (
-    FCNConfig, OneShotFCN, class_weights, images_to_input, load_checkpoint, load_pretrained, mask_counts,
-    save_checkpoint, summarize_counts,
+    FCNConfig, OneShotFCN, class_weights, flip_horizontally, images_to_input, load_checkpoint, load_pretrained,
+    mask_counts, save_checkpoint, soft_iou_loss, summarize_counts,
 )
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.segmentation_data import SegmentationDataConfig, render_scene_views
+from mani_active_vision.segmentation_data import (
+    SegmentationDataConfig, collect_segmentation_data, load_segmentation_data, render_scene_views,
+)
 
 SHIPPED_UNSEEN_IOU = 0.65
 """Shipped weights' mean target IoU on a small fresh unseen-object batch must exceed this: measured 0.77 on
@@ -37,6 +39,17 @@ def test_rendered_samples_are_deterministic_and_match_the_segmentation():
     assert first["mask"][target_mode].any((1, 2)).mean() >= 0.5  # aimed at the target: mostly in view
 
 
+def test_data_sets_do_not_depend_on_the_number_of_workers(tmp_path):
+    config = SegmentationDataConfig(num_scenes=3, views_per_scene=2, seed=7)
+    one = collect_segmentation_data(str(tmp_path / "one"), config, scenes_per_shard=2, progress=False)
+    two = collect_segmentation_data(str(tmp_path / "two"), config, scenes_per_shard=2, workers=2, progress=False)
+    assert one["num_samples"] == two["num_samples"] == 6 and one["shards"] == two["shards"]
+    first, second = load_segmentation_data(str(tmp_path / "one")), load_segmentation_data(str(tmp_path / "two"))
+    for key in first:
+        np.testing.assert_array_equal(first[key], second[key])
+    np.testing.assert_array_equal(first["scene_seed"], [7, 7, 8, 8, 9, 9])
+
+
 def test_model_shapes_and_predict_at_other_sizes():
     model = OneShotFCN(FCNConfig(channels=(8, 16, 16))).eval()
     scores = model(torch.zeros(2, 3, 64, 64), torch.zeros(2, 3, 64, 64))
@@ -44,6 +57,38 @@ def test_model_shapes_and_predict_at_other_sizes():
     for size in (64, 128, 32):
         mask = model.predict(np.zeros((3, size, size, 3), np.uint8), torch.zeros(3, 64, 64, 3, dtype=torch.uint8))
         assert mask.dtype == torch.bool and mask.shape == (3, size, size)
+
+
+@pytest.mark.parametrize("full_res_channels", [0, 4])
+def test_predict_reuses_the_target_features_only_while_target_and_weights_are_the_same(full_res_channels):
+    torch.manual_seed(0)
+    model = OneShotFCN(FCNConfig(channels=(8, 8, 16), full_res_channels=full_res_channels)).eval()
+    rng = np.random.default_rng(0)
+    scene, target, other = (rng.integers(0, 256, (2, 64, 64, 3), dtype=np.uint8) for _ in range(3))
+
+    def fresh(scene, target):  # no cache: the whole forward pass
+        with torch.inference_mode():
+            scores = model(images_to_input(scene), images_to_input(target))
+        return scores[:, 1] > scores[:, 0]
+
+    for t in (target, target, other, target):
+        assert torch.equal(model.predict(scene, t), fresh(scene, t))
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.1 * torch.randn_like(p))  # in place, as an optimiser step
+    assert torch.equal(model.predict(scene, target), fresh(scene, target))
+
+
+def test_flips_and_soft_iou_loss():
+    x = torch.arange(2 * 3 * 4, dtype=torch.float32).view(2, 3, 4)
+    flipped, again = flip_horizontally(x, x.clone(), where=torch.tensor([True, False]))
+    assert torch.equal(flipped[0], x[0].flip(-1)) and torch.equal(flipped[1], x[1]) and torch.equal(flipped, again)
+    mask = torch.zeros(2, 4, 4, dtype=torch.bool)
+    mask[0, 1:3, 1:3] = True  # sample 1 has no target: it does not count
+    sure = torch.stack([~mask, mask], 1).float() * 20  # confident and right
+    assert soft_iou_loss(sure, mask) < 1e-6
+    assert soft_iou_loss(sure.flip(1), mask) > 0.99  # confident and wrong
+    assert soft_iou_loss(sure, torch.zeros_like(mask)) == 0
 
 
 def test_a_few_training_steps_lower_the_loss():
