@@ -7,7 +7,8 @@ Columns: pixel accuracy (all samples); target IoU, mean per sample over samples 
 the model marks any pixel; box error = mean |Δ| of the normalised (x, y, w, h) box on samples with the
 target; miss rate = share of those where the mask is empty. IoU (≥1%): target IoU over samples where the
 target covers at least 1% of the image (the sizes control works with; tiny far-away targets of a few
-pixels are where per-sample IoU is lowest).
+pixels are where per-sample IoU is lowest). A second table splits the target IoU by the target's share of
+the image.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ class Args:
     """keep only the largest connected region of each predicted mask (as BoxState does)"""
 
 
+SIZE_BINS = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1, 1.01)
+"""edges of the target's share of the image for the IoU-by-size table"""
 COLUMNS = ("pixel_accuracy", "target_iou", "pooled_target_iou", "false_positive_rate", "box_error", "miss_rate")
 
 
@@ -50,6 +53,12 @@ def main(args: Args):
         "| data set | objects | size | samples (with target) | pixel acc | target IoU | pooled IoU | FP rate (absent) | box error | miss rate | IoU (target ≥1%) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    bins = list(zip(SIZE_BINS[:-1], SIZE_BINS[1:]))
+    by_size = [
+        "", "Target IoU by the target's share of the image (samples in brackets):", "",
+        "| data set | " + " | ".join(f"{lo:.1%}–{hi:.1%}" if hi <= 1 else f"≥ {lo:.0%}" for lo, hi in bins) + " |",
+        "|---|" + "---|" * len(bins),
+    ]
     for data_dir in args.data_dirs:
         with open(os.path.join(data_dir, "manifest.json")) as f:
             config = json.load(f)["config"]
@@ -63,8 +72,15 @@ def main(args: Args):
         n = metrics["samples_with_target"] + metrics["samples_without_target"]
         values = " | ".join(f"{metrics[c]:.4f}" if c == "pixel_accuracy" else f"{metrics[c]:.3f}" for c in COLUMNS + ("target_iou_large",))
         lines.append(f"| {data_dir} | {config['object_set']} | {config['image_size']}² | {n} ({metrics['samples_with_target']}) | {values} |")
+        share = counts["true"].float() / counts["pixels"]
+        iou = counts["intersection"].float() / counts["union"].clamp_min(1)
+        cells = []
+        for lo, hi in bins:
+            sel = (counts["true"] > 0) & (share >= lo) & (share < hi)
+            cells.append(f"{float(iou[sel].mean()):.3f} ({int(sel.sum())})" if sel.any() else "–")
+        by_size.append(f"| {data_dir} | " + " | ".join(cells) + " |")
         print(f"{data_dir}: {json.dumps(metrics)} ({time.time() - started:.0f} s)")
-    table = "\n".join(lines)
+    table = "\n".join(lines + by_size)
     print(table)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
