@@ -128,7 +128,10 @@ class OneShotFCN(nn.Module):
         scene, target = scene.to(device), target.to(device)
         size = self.config.image_size
         if (height, width) != (size, size):
-            scene = F.interpolate(scene, size=(size, size), mode="area" if height > size else "bilinear")
+            if height == width and height % size == 0:  # a whole factor: average its blocks ("area", faster)
+                scene = F.avg_pool2d(scene, height // size)
+            else:
+                scene = F.interpolate(scene, size=(size, size), mode="area" if height > size else "bilinear")
         if target.shape[2:] != (self.config.target_size,) * 2:
             target = F.interpolate(target, size=(self.config.target_size,) * 2, mode="bilinear")
         scores = self.segment(scene, self._target_features_cached(target))
