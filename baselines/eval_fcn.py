@@ -18,6 +18,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 import tyro
 
@@ -35,11 +36,57 @@ class Args:
     """where the markdown table is written"""
     largest_component: bool = False
     """keep only the largest connected region of each predicted mask (as BoxState does)"""
+    examples_png: str | None = "outputs/fcn_examples.png"
+    """a picture of examples per data set: samples with the target and false positives (none: skip)"""
+    examples: int = 8
+    """examples of each kind per data set in that picture"""
 
 
 SIZE_BINS = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1, 1.01)
 """edges of the target's share of the image for the IoU-by-size table"""
 COLUMNS = ("pixel_accuracy", "target_iou", "pooled_target_iou", "false_positive_rate", "box_error", "miss_rate")
+
+
+def plot_examples(model, datasets: dict, counts: dict, args: Args) -> None:
+    """Per data set two strips of (target image above, scene with the predicted mask in magenta below): random
+    samples that contain the target, then random samples without it where the model marked something."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rng = np.random.default_rng(0)
+    strips = []
+    for name, data in datasets.items():
+        c = counts[name]
+        kinds = {"with the target": np.flatnonzero(c["true"] > 0), "false positives (no target in view)": np.flatnonzero((c["true"] == 0) & (c["predicted"] > 0))}
+        for kind, pool in kinds.items():
+            picks = np.sort(rng.choice(pool, min(args.examples, len(pool)), replace=False))
+            if not len(picks):
+                continue
+            overlay = data["scene"][picks].copy()
+            overlay[model.predict(data["scene"][picks], data["target"][picks], args.largest_component).numpy()] = (255, 0, 255)
+            targets = model_sized(data["target"][picks], overlay.shape[1])
+            pad = np.full((len(picks), 2, overlay.shape[2], 3), 255, np.uint8)
+            columns = np.concatenate([targets, pad, overlay], 1)  # (k, 2H + 2, W, 3)
+            columns = np.concatenate([columns, np.full((len(picks), columns.shape[1], 2, 3), 255, np.uint8)], 2)
+            strips.append((f"{name}: {kind}", np.concatenate(list(columns), 1)))
+    fig, axes = plt.subplots(len(strips), 1, figsize=(1.2 * args.examples, 2.7 * len(strips)), squeeze=False)
+    for ax, (title, strip) in zip(axes[:, 0], strips):
+        ax.imshow(strip)
+        ax.set_title(title, fontsize=9)
+        ax.axis("off")
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(args.examples_png)), exist_ok=True)
+    fig.savefig(args.examples_png, dpi=100)
+    plt.close(fig)
+
+
+def model_sized(images: np.ndarray, side: int) -> np.ndarray:
+    """uint8 images (N, h, w, 3) resized to side x side (nearest), to stand next to the scenes."""
+    rows = np.arange(side) * images.shape[1] // side
+    cols = np.arange(side) * images.shape[2] // side
+    return images[:, rows][:, :, cols]
 
 
 def main(args: Args):
@@ -59,6 +106,7 @@ def main(args: Args):
         "| data set | " + " | ".join(f"{lo:.1%}–{hi:.1%}" if hi <= 1 else f"≥ {lo:.0%}" for lo, hi in bins) + " |",
         "|---|" + "---|" * len(bins),
     ]
+    datasets, all_counts = {}, {}
     for data_dir in args.data_dirs:
         with open(os.path.join(data_dir, "manifest.json")) as f:
             config = json.load(f)["config"]
@@ -67,6 +115,7 @@ def main(args: Args):
         with torch.inference_mode():
             counts = dataset_counts(model, data, largest_component=args.largest_component)
         metrics = summarize_counts(counts)
+        datasets[data_dir], all_counts[data_dir] = data, counts
         large = counts["true"] >= 0.01 * counts["pixels"]
         metrics["target_iou_large"] = summarize_counts({k: v[large] for k, v in counts.items()})["target_iou"]
         n = metrics["samples_with_target"] + metrics["samples_without_target"]
@@ -86,6 +135,9 @@ def main(args: Args):
     with open(args.out, "w") as f:
         f.write(table + "\n")
     print(f"written to {args.out}")
+    if args.examples_png:
+        plot_examples(model, datasets, all_counts, args)
+        print(f"examples: {args.examples_png}")
 
 
 if __name__ == "__main__":
