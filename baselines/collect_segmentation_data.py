@@ -1,7 +1,7 @@
 """Render a segmentation data set for the one-shot FCN from ActiveVisionFind-v0 (shards + manifest.json).
 
 The default command set used for the shipped weights (`scripts/make_fcn.sh` runs them all):
-  python baselines/collect_segmentation_data.py --out-dir data/seg64/train --object-set train --num-scenes 300 --seed 0
+  python baselines/collect_segmentation_data.py --out-dir data/seg64/train --object-set train --num-scenes 1500 --seed 0 --workers 2
   ... val (train objects, seed 100000), test_train (seed 200000), test_unseen (unseen objects, seed 300000)
 """
 
@@ -22,7 +22,7 @@ class Args:
     """folder for the shards and manifest.json"""
     object_set: str = "train"
     """train | unseen | primitives (the unseen set is never used for training)"""
-    num_scenes: int = 300
+    num_scenes: int = 1500
     """scenes (resets with new objects); samples = num_scenes * views_per_scene"""
     views_per_scene: int = 20
     """camera poses rendered per scene"""
