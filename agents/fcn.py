@@ -5,14 +5,16 @@ VGG offline): one encoder, shared by both images, gives features at three depths
 image side). At each depth the target's features are global-max-pooled to 1×1, tiled over the scene's
 features and concatenated with them; 1×1 convolutions fuse the pair. Transposed convolutions upsample the
 deepest fused map, adding the shallower fused maps as skip connections, to two class scores per pixel
-(background, target).
+(background, target); optionally (`FCNConfig.full_res_channels`, the shipped weights use 8) a convolution
+of the scene at full resolution is added before a last 3×3 convolution, for sharper edges.
 
     model = load_pretrained()                          # agents/weights/fcn.pt, ready in eval mode
     mask = model.predict(scene_rgb, target_rgb)        # uint8 (N, H, W, 3) each -> bool (N, H, W)
 
 `predict` takes a scene of any size whose sides are multiples of 8: a size other than the one the model
 was trained at (`config.image_size`) is resized to it and the scores are resized back (bilinear), so the
-mask always has the scene's size. The target image is resized to `config.target_size` likewise.
+mask always has the scene's size. The target image is resized to `config.target_size` likewise. The
+target's features are computed once per target image and reused while it and the weights stay the same.
 """
 
 from __future__ import annotations
