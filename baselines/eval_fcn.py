@@ -122,11 +122,11 @@ def main(args: Args):
         values = " | ".join(f"{metrics[c]:.4f}" if c == "pixel_accuracy" else f"{metrics[c]:.3f}" for c in COLUMNS + ("target_iou_large",))
         lines.append(f"| {data_dir} | {config['object_set']} | {config['image_size']}² | {n} ({metrics['samples_with_target']}) | {values} |")
         share = counts["true"].float() / counts["pixels"]
-        iou = counts["intersection"].float() / counts["union"].clamp_min(1)
         cells = []
         for lo, hi in bins:
             sel = (counts["true"] > 0) & (share >= lo) & (share < hi)
-            cells.append(f"{float(iou[sel].mean()):.3f} ({int(sel.sum())})" if sel.any() else "–")
+            iou = summarize_counts({k: v[sel] for k, v in counts.items()})["target_iou"]
+            cells.append(f"{iou:.3f} ({int(sel.sum())})" if sel.any() else "–")
         by_size.append(f"| {data_dir} | " + " | ".join(cells) + " |")
         print(f"{data_dir}: {json.dumps(metrics)} ({time.time() - started:.0f} s)")
     table = "\n".join(lines + by_size)

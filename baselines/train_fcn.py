@@ -69,12 +69,12 @@ class Args:
     """continue from RUN_DIR/last.pt"""
 
 
-def plot_curves(history: list[dict], path: str) -> None:
+def plot_curves(history: list[dict], path: str, loss_name: str = "weighted cross-entropy") -> None:
     epochs = [h["epoch"] for h in history]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     axes[0].plot(epochs, [h["train_loss"] for h in history], label="train")
     axes[0].plot(epochs, [h["val_loss"] for h in history], label="val")
-    axes[0].set_title("loss (weighted cross-entropy + soft IoU)" if history[-1].get("iou_loss_weight") else "weighted cross-entropy")
+    axes[0].set_title(loss_name)
     axes[1].plot(epochs, [h["val"]["target_iou"] for h in history], label="target IoU (per sample)")
     axes[1].plot(epochs, [h["val"]["pooled_target_iou"] for h in history], label="target IoU (pooled)")
     axes[1].plot(epochs, [h["val"]["pixel_accuracy"] for h in history], label="pixel accuracy")
@@ -152,7 +152,7 @@ def main(args: Args):
                 for i in range(0, len(val["mask"]), 128)
             ]
         metrics = summarize_counts(dataset_counts(model, val))
-        history.append(dict(epoch=epoch + 1, lr=lr, iou_loss_weight=args.iou_loss_weight, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
+        history.append(dict(epoch=epoch + 1, lr=lr, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
                             val=metrics, train_seconds=round(train_seconds, 1)))
         print(f"epoch {epoch + 1:2d} lr {lr:.2e} train loss {np.mean(losses):.4f} val loss {np.mean(val_losses):.4f} "
               f"val IoU {metrics['target_iou']:.3f} (pooled {metrics['pooled_target_iou']:.3f}) "
@@ -163,7 +163,8 @@ def main(args: Args):
             save_checkpoint(best_path, model, epoch=epoch + 1, val=metrics, args=asdict(args), class_weights=weights.tolist())
         with open(os.path.join(args.run_dir, "history.json"), "w") as f:
             json.dump(history, f, indent=1)
-        plot_curves(history, os.path.join(args.run_dir, "curves.png"))
+        loss_name = "weighted cross-entropy" + (f" + {args.iou_loss_weight:g} × soft IoU" if args.iou_loss_weight else "")
+        plot_curves(history, os.path.join(args.run_dir, "curves.png"), loss_name)
     print(f"best val target IoU {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")
 
 
