@@ -10,17 +10,19 @@ box (x, y, w, h) as the state and the target's share of the image as the reward.
 paper's scripted exploration orbits until the target is first seen, then the DQN acts for the rest of the
 episode; only the DQN's own transitions go into the replay buffer.
 
+The env is `--env.*` (`mani_active_vision.envs.EnvConfig`, stored in the checkpoint): e.g.
+`--env.box-source fcn` learns from the FCN's box, `--env.with-ee-pos` adds the camera's commanded position
+(the paper's "link state" experiment), `--env.placement fixed` the paper's first experiment.
+
 Deviations from / additions to the paper (it does not state the rest):
 - discount, batch size, learning start and update frequency are not given in the paper: ours are below;
 - a target network (on by default: the standard DQN of Mnih et al. 2015), double DQN and the Huber loss
   are options; the default loss is the mean squared TD error;
-- the state is the ground-truth box until the FCN lands (`--box-source fcn` then); `--with-ee-pos` adds
-  the camera's commanded position (the paper's "link state" experiment);
 - episodes of 100 steps (the task's limit); the paper's episode length is not given.
 
 The preset `shaped` (`SHAPED`) keeps the paper's network, optimiser, buffer, 100 episodes and ε schedule
 but changes what the learner learns from, because with the paper's reward the DQN did not learn to
-focus in 100 episodes (0% success, docs/results.md):
+focus in 100 episodes (0% success, docs/results.md; `LearnerReward`, docs/design.md §9):
 - a training episode ends at the first success, which earns a bonus of 1;
 - potential-based shaping 5 (γΦ(s') - Φ(s)) replaces the env's reward, with Φ the mean of the log of the
   target's share (over the success share, two decades mapped to [0, 1]) and how centred it is: getting
@@ -40,19 +42,21 @@ import math
 import os
 import random
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-import torch.nn as nn
 import torch.nn.functional as F
 import tyro
 import tyro.extras
 from tqdm import tqdm
 
-from mani_active_vision.agents.evaluation import Trajectory, episode_metrics, make_box_env, plot_curves, save_json
 from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array
+from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.directions import DIRECTIONS
+from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.json_io import save_json
+from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
 
 TRAIN_SEED_STRIDE = 10_000
 """Training episode k of run seed s resets the env with seed s * TRAIN_SEED_STRIDE + k (evaluation uses
@@ -61,6 +65,8 @@ seeds from 1,000,000 up: never a training scene)."""
 
 @dataclass
 class Args:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """the env the DQN learns in (stored in the checkpoint; evaluation reads it back)"""
     seed: int = 0
     """seed of the run (torch, numpy, the env's episodes)"""
     episodes: int = 100
@@ -93,24 +99,9 @@ class Args:
     """Huber (smooth L1) TD loss instead of the squared error"""
     explore: bool = True
     """the paper's scripted exploration until the target is first seen, then the DQN"""
-    placement: str = "random"
-    """object placement: random, or fixed (the same scene every episode)"""
-    with_ee_pos: bool = False
-    """append the camera's commanded position to the box (the paper's link-state experiment)"""
-    box_source: str = "ground_truth"
-    """where the box comes from: ground_truth (segmentation) or fcn (the shipped network)"""
-    image_size: int = 64
-    """wrist camera side in pixels (the ground-truth box only needs 64)"""
-    start_pose: str = "sky"
-    """arm start: sky (the paper's) or search"""
-    num_objects: int = 5
-    """objects on the floor, one of them the target"""
-    object_set: str = "train"
-    """object set: train, unseen or primitives"""
-    reward_mode: str = "dense"
-    """dense (the target's share of the image: the paper's), normalized_dense or sparse"""
-    terminate_on_success: bool = False
-    """end a training episode at the first success (not in the paper)"""
+    end_at_success: bool = False
+    """end a training episode at the first success, a terminal state for the learner (not in the paper;
+    evaluation runs the env as it is)"""
     success_bonus: float = 0.0
     """added to the reward of a step that reaches success (not in the paper)"""
     refusal_penalty: float = 0.0
@@ -118,9 +109,8 @@ class Args:
     step_cost: float = 0.0
     """subtracted from the reward of every step: cycling costs, reaching success sooner pays (not in the paper)"""
     shaping: str = "none"
-    """none: learn from the env's reward (the paper); share or log_share: learn from γΦ(s') - Φ(s) instead,
-    with Φ the target's share of the image over the success share (capped at 1), or its logarithm scaled to
-    [0, 1] over two decades of share: progress is rewarded, hovering is not (not in the paper)"""
+    """none: learn from the env's reward (the paper); fraction, log_fraction or log_fraction_centred: learn
+    from γΦ(s') - Φ(s) instead (see `potential`): progress is rewarded, hovering is not (not in the paper)"""
     shaping_scale: float = 1.0
     """Φ is multiplied by this (a larger scale: a stronger signal early on; the optimal policy is the same)"""
     with_last_action: bool = False
@@ -134,21 +124,9 @@ class Args:
     updates_per_step: int = 1
     """gradient updates per env step (not in the paper)"""
     run_dir: str = "runs/dqn"
-    """where the checkpoint, history and learning curve go (a folder per run is made inside)"""
+    """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
     """the run's folder name (default: made from the options and the seed)"""
-
-
-class QNetwork(nn.Module):
-    """The paper's Q-network: state -> one hidden ReLU layer -> a Q-value per direction."""
-
-    def __init__(self, state_dim: int, hidden_units: int = 20, num_actions: int = len(DIRECTIONS)):
-        super().__init__()
-        self.state_dim = state_dim
-        self.network = nn.Sequential(nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions))
-
-    def forward(self, state: torch.Tensor) -> torch.Tensor:
-        return self.network(state)
 
 
 def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
@@ -180,7 +158,8 @@ class ReplayBuffer:
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         idx = rng.integers(0, self.size, size=batch_size)
-        return {k: torch.as_tensor(getattr(self, k)[idx]) for k in ("states", "actions", "rewards", "next_states", "terminated", "steps")}
+        keys = ("states", "actions", "rewards", "next_states", "terminated", "steps")
+        return {k: torch.as_tensor(getattr(self, k)[idx]) for k in keys}
 
 
 class NStepWindow:
@@ -200,7 +179,8 @@ class NStepWindow:
         return out
 
 
-def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: float, double_dqn: bool = False, huber: bool = False) -> torch.Tensor:
+def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: float, double_dqn: bool = False,
+            huber: bool = False) -> torch.Tensor:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
     (`steps` = 1 where the batch does not say)."""
     with torch.no_grad():
@@ -228,61 +208,68 @@ def mirror_state(state: np.ndarray) -> np.ndarray:
     return np.concatenate([box, state[4:][MIRRORED_ACTION]]) if len(state) > 4 else box
 
 
-SHAPINGS = ("none", "share", "log_share", "log_share_centred")
+SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
 
 
 def potential(info, success_fraction: float, shaping: str) -> float:
-    """Φ of the state an `info` describes: the target's share of the image over the success share, capped at
-    1 ("share"), or its logarithm mapped from [1/100, 1] to [0, 1] ("log_share"), or the mean of that and
-    how centred the target is (1 at the centre, 0 at half the image width away or when unseen:
-    "log_share_centred"); 0 for "none"."""
-    ratio = min(float(info["target_fraction"].reshape(-1)[0]) / success_fraction, 1.0)
-    if shaping == "share" or shaping == "none":
-        return ratio if shaping == "share" else 0.0
-    log_share = max(1.0 + math.log10(ratio) / 2.0, 0.0) if ratio > 0 else 0.0
-    if shaping == "log_share":
-        return log_share
-    centred = max(1.0 - float(info["target_center_offset"].reshape(-1)[0]) / 0.5, 0.0)  # the offset is inf when unseen
-    return 0.5 * (log_share + centred)
+    """Φ of the state an `info` describes: the target's fraction of the image over the success fraction,
+    capped at 1 ("fraction"), or its logarithm mapped from [1/100, 1] to [0, 1] ("log_fraction"), or the
+    mean of that and how centred the target is (1 at the centre, 0 at half the image width away or when
+    unseen: "log_fraction_centred"); 0 for "none"."""
+    ratio = min(first_env(info, "target_fraction") / success_fraction, 1.0)
+    if shaping in ("none", "fraction"):
+        return ratio if shaping == "fraction" else 0.0
+    log_fraction = max(1.0 + math.log10(ratio) / 2.0, 0.0) if ratio > 0 else 0.0
+    if shaping == "log_fraction":
+        return log_fraction
+    centred = max(1.0 - first_env(info, "target_center_offset") / 0.5, 0.0)  # the offset is inf when unseen
+    return 0.5 * (log_fraction + centred)
 
 
-def save_checkpoint(path: str, q_network: QNetwork, args: Args):
-    config = {**dataclasses.asdict(args), "state_dim": q_network.state_dim}
-    torch.save({"state_dict": q_network.state_dict(), "config": config}, path)
+class LearnerReward:
+    """What the learner learns from at each step (docs/design.md §9): the env's reward, or with `shaping`
+    the potential difference γΦ(s') - Φ(s) instead; plus the success bonus, less the refusal penalty and
+    the step cost. Call `reset(info)` at an episode's start and the object at every step (also the
+    script's steps, so that Φ(s) is always the previous step's)."""
 
+    def __init__(self, args: Args, success_fraction: float):
+        self.args, self.success_fraction = args, success_fraction
+        self.previous = 0.0
 
-def load_q_network(path: str) -> tuple[QNetwork, dict]:
-    """The Q-network of a checkpoint and the config it was trained with (loads with weights_only=True)."""
-    checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    config = checkpoint["config"]
-    q_network = QNetwork(config["state_dim"], config["hidden_units"])
-    q_network.load_state_dict(checkpoint["state_dict"])
-    return q_network.eval(), config
+    def _potential(self, info) -> float:
+        return self.args.shaping_scale * potential(info, self.success_fraction, self.args.shaping)
 
+    def reset(self, info):
+        self.previous = self._potential(info)
 
-def env_kwargs(args: Args) -> dict:
-    """The env options of a run (shared by training and evaluating its checkpoint)."""
-    return dict(box_source=args.box_source, with_ee_pos=args.with_ee_pos, image_size=args.image_size, placement=args.placement,
-                start_pose=args.start_pose, num_objects=args.num_objects, object_set=args.object_set, reward_mode=args.reward_mode)
+    def __call__(self, env_reward, info) -> float:
+        args, current = self.args, self._potential(info)
+        reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
+        self.previous = current
+        refused = first_env(info, "refused")
+        return reward + args.success_bonus * first_env(info, "success") - args.refusal_penalty * refused - args.step_cost
 
 
 def default_run_name(args: Args) -> str:
     shaping = f"_{args.shaping}" if args.shaping != "none" else ""
-    return f"{args.placement}_{'explore' if args.explore else 'noexplore'}{'_ee' if args.with_ee_pos else ''}{shaping}_seed{args.seed}"
+    link = "_ee" if args.env.with_ee_pos else ""
+    return f"{args.env.placement}_{'explore' if args.explore else 'noexplore'}{link}{shaping}_seed{args.seed}"
 
 
-def train(args: Args, env=None, progress: bool = True) -> dict:
+def train(args: Args, progress: bool = True) -> dict:
     """Train one DQN; returns {"run_dir", "checkpoint", "history" (one dict per episode), "transitions" (stored)}."""
+    if args.shaping not in SHAPINGS:
+        raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
+    if args.mirror_augment and args.env.with_ee_pos:
+        raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
+    if args.env.box_source == "none":
+        raise ValueError("the DQN learns on the box state: env.box_source must be ground_truth or fcn")
     torch.set_num_threads(1)
     random.seed(args.seed)
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
-    if args.shaping not in SHAPINGS:
-        raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
-    if args.mirror_augment and args.with_ee_pos:
-        raise ValueError("mirror_augment mirrors the box only: it cannot be combined with with_ee_pos")
-    env = env if env is not None else make_box_env(**env_kwargs(args), terminate_on_success=args.terminate_on_success)
+    env = make_env(args.env)
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if args.with_last_action else 0)
 
     q_network = QNetwork(state_dim, args.hidden_units)
@@ -295,65 +282,68 @@ def train(args: Args, env=None, progress: bool = True) -> dict:
     policy = ExplorePolicy(env, then=learner) if args.explore else learner
     buffer = ReplayBuffer(args.buffer_size, state_dim)
     window = NStepWindow(args.n_step, args.gamma)
-    success_fraction = env.unwrapped.success_fraction
+    learner_reward = LearnerReward(args, env.unwrapped.success_fraction)
 
     run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
     os.makedirs(run_dir, exist_ok=True)
     history, global_step, start = [], 0, time.time()
     trajectory = Trajectory()
     bar = tqdm(range(args.episodes), desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
-    for episode in bar:
-        learner.epsilon = linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, episode)
-        obs, info = env.reset(seed=args.seed * TRAIN_SEED_STRIDE + episode)
-        policy.reset(obs, info)
-        trajectory.start(info)
-        losses, learner_steps, done = [], 0, False
-        share_potential = args.shaping_scale * potential(info, success_fraction, args.shaping)
-        while not done:
-            learner_acts = bool(policy.update(obs)[0]) if args.explore else True
-            state = learner.state(obs)[0]
-            action = policy.act(obs, info)
-            next_obs, reward, terminated, truncated, info = env.step(action)
-            trajectory.append(reward, info)
-            terminated, done = bool(terminated[0]), bool(terminated[0] or truncated[0])
-            next_potential = args.shaping_scale * potential(info, success_fraction, args.shaping)
-            if learner_acts:  # the script's steps are not the learner's experience
-                learner_reward = args.gamma * next_potential - share_potential if args.shaping != "none" else float(reward[0])
-                learner_reward += args.success_bonus * float(info["success"][0]) - args.refusal_penalty * float(info["refused"][0]) - args.step_cost
-                next_state = learner.state(next_obs)[0]
-                for s0, a0, discounted, s_n, ended, steps in window.push(state, action[0], learner_reward, next_state, terminated, done):
-                    buffer.add(s0, a0, discounted, s_n, ended, steps)
-                    if args.mirror_augment:
-                        buffer.add(mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps)
-                learner_steps += 1
-            obs, share_potential = next_obs, next_potential
-            global_step += 1
+    try:
+        for episode in bar:
+            learner.epsilon = linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, episode)
+            obs, info = env.reset(seed=args.seed * TRAIN_SEED_STRIDE + episode)
+            policy.reset(obs, info)
+            trajectory.start(info)
+            learner_reward.reset(info)
+            losses, learner_steps, done = [], 0, False
+            while not done:
+                learner_acts = bool(policy.update(obs)[0]) if args.explore else True
+                state = learner.state(obs)[0]
+                action = policy.act(obs, info)
+                next_obs, reward, terminated, truncated, info = env.step(action)
+                trajectory.append(reward, info)
+                terminated = bool(terminated[0]) or (args.end_at_success and bool(first_env(info, "success")))
+                done = terminated or bool(truncated[0])
+                reward_now = learner_reward(reward, info)
+                if learner_acts:  # the script's steps are not the learner's experience
+                    next_state = learner.state(next_obs)[0]
+                    for s0, a0, discounted, s_n, ended, steps in window.push(state, action[0], reward_now, next_state,
+                                                                              terminated, done):
+                        buffer.add(s0, a0, discounted, s_n, ended, steps)
+                        if args.mirror_augment:
+                            buffer.add(mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps)
+                    learner_steps += 1
+                obs = next_obs
+                global_step += 1
 
-            if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
-                for _ in range(args.updates_per_step):
-                    loss = td_loss(q_network, target_network, buffer.sample(args.batch_size, rng), args.gamma, args.double_dqn, args.huber)
-                    optimizer.zero_grad()
-                    loss.backward()
-                    optimizer.step()
-                    losses.append(loss.item())
-            if args.target_network and global_step % args.target_update_steps == 0:
-                target_network.load_state_dict(q_network.state_dict())
+                if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
+                    for _ in range(args.updates_per_step):
+                        batch = buffer.sample(args.batch_size, rng)
+                        loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
+                        optimizer.zero_grad()
+                        loss.backward()
+                        optimizer.step()
+                        losses.append(loss.item())
+                if args.target_network and global_step % args.target_update_steps == 0:
+                    target_network.load_state_dict(q_network.state_dict())
 
-        metrics = episode_metrics(trajectory)
-        history.append({"episode": episode, "epsilon": learner.epsilon, "learner_steps": learner_steps,
-                        "td_loss": float(np.mean(losses)) if losses else float("nan"), **metrics})
-        bar.set_postfix(ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}")
-
-    checkpoint = os.path.join(run_dir, "q_network.pt")
-    save_checkpoint(checkpoint, q_network, args)
-    save_json({"config": dataclasses.asdict(args), "seconds": time.time() - start, "env_steps": global_step, "history": history},
-              os.path.join(run_dir, "history.json"))
-    plot_curves({default_run_name(args): [[h["return"] for h in history]]}, os.path.join(run_dir, "learning_curve.png"), "episode return")
+            metrics = episode_metrics(trajectory)
+            history.append({"episode": episode, "epsilon": learner.epsilon, "learner_steps": learner_steps,
+                            "td_loss": float(np.mean(losses)) if losses else math.nan, **metrics})
+            bar.set_postfix(ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}")
+    finally:
+        env.close()
+        checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far
+        save_q_network(checkpoint, q_network, args)
+        save_json({"config": dataclasses.asdict(args), "seconds": time.time() - start, "env_steps": global_step,
+                   "complete": len(history) == args.episodes, "history": history}, os.path.join(run_dir, "history.json"))
     return {"run_dir": run_dir, "checkpoint": checkpoint, "history": history, "transitions": buffer.size}
 
 
-SHAPED = dict(terminate_on_success=True, success_bonus=1.0, refusal_penalty=0.1, step_cost=0.02, shaping="log_share_centred",
-              shaping_scale=5.0, gamma=0.99, n_step=5, with_last_action=True, double_dqn=True, mirror_augment=True, updates_per_step=2)
+SHAPED = dict(end_at_success=True, success_bonus=1.0, refusal_penalty=0.1, step_cost=0.02, shaping="log_fraction_centred",
+              shaping_scale=5.0, gamma=0.99, n_step=5, with_last_action=True, double_dqn=True, mirror_augment=True,
+              updates_per_step=2)
 """The options of the `shaped` preset (the paper's learner with our learner's reward; see the module docstring)."""
 
 PRESETS = {
@@ -362,5 +352,9 @@ PRESETS = {
 }
 
 if __name__ == "__main__":
+    from mani_active_vision.evaluation.report import plot_curves  # the script's plot; training itself imports no plotting
+
     result = train(tyro.extras.overridable_config_cli(PRESETS))
-    print(f"checkpoint: {result['checkpoint']}")
+    curve = os.path.join(result["run_dir"], "learning_curve.png")
+    plot_curves({os.path.basename(result["run_dir"]): [[h["return"] for h in result["history"]]]}, curve, "episode return")
+    print(f"checkpoint: {result['checkpoint']}\nlearning curve: {curve}")

@@ -1,6 +1,6 @@
 """One-shot segmentation FCN: given the wrist view and one picture of the target, which pixels are the target.
 
-The paper's design (DESIGN §1), made small enough for a CPU core and trained from scratch (no pretrained
+The paper's design (docs/design.md §10), made small enough for a CPU core and trained from scratch (no pretrained
 VGG offline): one encoder, shared by both images, gives features at three depths (1/2, 1/4, 1/8 of the
 image side). At each depth the target's features are global-max-pooled to 1×1, tiled over the scene's
 features and concatenated with them; 1×1 convolutions fuse the pair. Transposed convolutions upsample the

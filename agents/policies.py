@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.directions import DIRECTIONS
 
 LEFT, RIGHT, FORWARD, UP, DOWN = (DIRECTIONS.index(d) for d in ("left", "right", "forward", "up", "down"))
@@ -145,8 +146,6 @@ class DQNPolicy:
 
     def __init__(self, env, checkpoint: str | None = None, epsilon: float = 0.0, seed: int = 0, q_network=None,
                  with_last_action: bool = False):
-        from mani_active_vision.agents.dqn import load_q_network
-
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
         self.num_envs = env.unwrapped.num_envs
@@ -156,7 +155,7 @@ class DQNPolicy:
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if self.with_last_action else 0)
         if state_dim != self.q_network.state_dim:
             raise ValueError(f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
-                             f"(with_ee_pos={self.config.get('with_ee_pos')}), the env gives {state_dim}")
+                             f"(with_ee_pos={self.config.get('env', {}).get('with_ee_pos')}), the env gives {state_dim}")
         self.epsilon = epsilon
         self.rng = np.random.default_rng(seed)
 

@@ -1,4 +1,4 @@
-"""Speed of ActiveVisionFind-v0 against the paper's PyBullet environment, measured in one run (DESIGN §9).
+"""Speed of ActiveVisionFind-v0 against the paper's PyBullet environment, measured in one run (docs/design.md §12).
 
 Steps/s of: our task, one env, at 128² and 256² `rgb+segmentation` and with `state` observations; the
 PyBullet reference (`pybullet_reference.py`) at the same sizes; 1 and 2 worker processes
@@ -29,6 +29,8 @@ import benchmark_env
 import pybullet_reference
 import mani_active_vision as mav
 from mani_active_vision.box_state import BOX_SOURCES, BoxState
+from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.json_io import save_json
 from mani_active_vision.vec_env import make_vec_env
 
 
@@ -65,8 +67,7 @@ def time_steps(env, steps: int, num_envs: int | None = None, seed: int = 0) -> f
 
 def measure_workers(num_workers: int, steps: int) -> dict:
     start = time.perf_counter()
-    env = make_vec_env("ActiveVisionFind-v0", num_workers, wrappers=(mav.DiscreteDirections,), backend="cpu",
-                       obs_mode="rgb+segmentation", start_pose="search")
+    env = make_vec_env(EnvConfig(start_pose="search", image_size=128, box_source="none"), num_workers, backend="cpu")
     env.reset(seed=0)
     ready = time.perf_counter() - start
     try:
@@ -76,8 +77,7 @@ def measure_workers(num_workers: int, steps: int) -> dict:
 
 
 def measure_fcn(steps: int) -> float:
-    env = gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search")
-    env = BoxState(mav.DiscreteDirections(env), source="fcn")
+    env = make_env(EnvConfig(start_pose="search", image_size=128, box_source="fcn"))
     try:
         return time_steps(env, steps)
     finally:
@@ -85,8 +85,7 @@ def measure_fcn(steps: int) -> float:
 
 
 def measure_gpu(num_envs: int, steps: int) -> float:
-    env = make_vec_env("ActiveVisionFind-v0", num_envs, wrappers=(mav.DiscreteDirections,), backend="gpu",
-                       obs_mode="rgb+segmentation", start_pose="search")
+    env = make_vec_env(EnvConfig(start_pose="search", image_size=128, box_source="none"), num_envs, backend="gpu")
     try:
         return time_steps(env, steps, num_envs)
     finally:
@@ -119,7 +118,7 @@ def main(args: Args):
         elif kind == "workers":
             results[job] = measure_workers(int(value), args.steps)
             rows.append((f"ours, {value} worker process(es), 128² rgb+segmentation (total)", results[job]["steps_per_s"], "pybullet 128"))
-        elif kind == "fcn" and "fcn" in BOX_SOURCES:
+        elif kind == "fcn":
             results[job] = dict(steps_per_s=measure_fcn(args.steps))
             rows.append(("ours, 1 env, 128² + FCN box state", results[job]["steps_per_s"], "pybullet 128"))
     if torch.cuda.is_available():
@@ -154,8 +153,6 @@ def main(args: Args):
     if split:
         lines.append(f"One 128² step: controller {split['set_action']:.2f} ms, physics {split['step']:.2f} ms, "
                      f"render + readback {split['_hand_camera_images']:.2f} ms, other {split['other']:.2f} ms.")
-    if "fcn" not in BOX_SOURCES:
-        lines.append("FCN box state: not measured (no `fcn` in BOX_SOURCES: the vision module is not merged).")
     if not torch.cuda.is_available():
         lines.append("GPU backend: not measured (no CUDA device on this machine).")
     table = "\n".join(lines)
@@ -164,7 +161,7 @@ def main(args: Args):
     (args.out / "benchmark.md").write_text(table + "\n")
     record = dict(results=results, load_average_before=load_before, load_average_after=os.getloadavg(),
                   cpu_count=os.cpu_count(), cuda=torch.cuda.is_available(), args={k: str(v) for k, v in vars(args).items()})
-    (args.out / "benchmark.json").write_text(json.dumps(record, indent=2))
+    save_json(record, str(args.out / "benchmark.json"))
     print(f"\nwrote {args.out / 'benchmark.md'} and {args.out / 'benchmark.json'}")
 
 

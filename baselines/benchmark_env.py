@@ -21,6 +21,7 @@ import torch
 import tyro
 
 import mani_active_vision as mav
+from mani_active_vision.envs import ENV_ID, EnvConfig
 
 
 @dataclass
@@ -54,9 +55,8 @@ def timed(owner, name: str, totals: dict):
 
 
 def measure_steps(obs_mode: str, args: Args) -> dict:
-    env = gym.make("ActiveVisionFind-v0", obs_mode=obs_mode, render_backend="cpu", start_pose="search",
-                   reconfiguration_freq=0, sensor_configs=dict(hand_camera=dict(width=args.resolution, height=args.resolution)))
-    env = mav.DiscreteDirections(env)
+    task_kwargs = EnvConfig(start_pose="search", image_size=args.resolution).task_kwargs()
+    env = mav.DiscreteDirections(gym.make(ENV_ID, **{**task_kwargs, "obs_mode": obs_mode}, reconfiguration_freq=0))
     base = env.unwrapped
     env.reset(seed=0)
     totals = defaultdict(float)
@@ -82,7 +82,7 @@ def measure_lifecycle(args: Args) -> dict:
     """Time to the first observation (make + reset, shaders compiled), reset times, memory per reconfigure."""
     result = {}
     start = time.perf_counter()
-    env = gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu")
+    env = gym.make(ENV_ID, **EnvConfig(image_size=args.resolution).task_kwargs())
     env.reset(seed=0)
     result["first_ready_s"] = time.perf_counter() - start
     base = env.unwrapped

@@ -21,6 +21,7 @@ import tyro
 
 import mani_active_vision  # noqa: F401  (registers the task)
 from mani_active_vision.agents.fcn import load_checkpoint, WEIGHTS_PATH
+from mani_active_vision.envs import ENV_ID, EnvConfig
 
 
 @dataclass
@@ -48,8 +49,7 @@ def time_calls(fn, repeats: int) -> np.ndarray:
 
 
 def env_step_ms(size: int, repeats: int) -> float:
-    env = gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
-                   sensor_configs=dict(hand_camera=dict(width=size, height=size)))
+    env = gym.make(ENV_ID, **EnvConfig(start_pose="search", image_size=size).task_kwargs())
     env.reset(seed=0)
     moves = np.array([[0.0, 0.03, 0.0], [0.0, -0.03, 0.0]], dtype=np.float32)
     steps = iter(range(10**9))

@@ -1,5 +1,5 @@
 """The main job: train the DQN (with the scripted exploration) in ActiveVisionFind-v0, evaluate it,
-draw its learning curve and record it.
+draw its learning curves and record it.
 
 Trains `agents.dqn` (the paper's network and schedule: 100 episodes, ε 0.1 -> 0.02, 20 hidden units; by
 default with the `shaped` learner's reward, without which it does not learn in 100 episodes) on the
@@ -13,19 +13,25 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import tyro
 
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.evaluation import evaluate, make_box_env, markdown_table, plot_curves, save_json, summarize
 from mani_active_vision.agents.policies import make_policy
-from mani_active_vision.recording import record_rollouts
+from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
+from mani_active_vision.evaluation.report import markdown_table, plot_curves
+from mani_active_vision.json_io import save_json
+from mani_active_vision.metrics import summarize
+from mani_active_vision.recording import RerunRecorder
 
 
 @dataclass
 class Args:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """the env the DQN learns in (its box_source is the training box: ground_truth by default)"""
     seed: int = 0
     """training seed"""
     preset: str = "shaped"
@@ -34,13 +40,9 @@ class Args:
     """training episodes (paper: 100)"""
     eval_episodes: int = 10
     """greedy evaluation episodes (seeds from 1,000,000)"""
-    train_box_source: str = "ground_truth"
-    """the box the DQN learns from: ground_truth (the segmentation's) or fcn"""
     box_source: str = "fcn"
     """the box the agent acts on when evaluated and recorded: fcn (the shipped one-shot segmentation network,
     as in the paper) or ground_truth; the other one is evaluated too"""
-    image_size: int = 64
-    """wrist camera side in pixels"""
     out_dir: str = "outputs/demo"
     """where the checkpoint, curves and metrics go"""
     record_episodes: int = 2
@@ -53,36 +55,39 @@ def main(args: Args):
     torch.set_num_threads(1)
     if args.preset not in dqn.PRESETS:
         raise ValueError(f"preset={args.preset!r} is not one of: {', '.join(dqn.PRESETS)}")
-    train_args = dataclasses.replace(dqn.PRESETS[args.preset][1], seed=args.seed, episodes=args.episodes, box_source=args.train_box_source,
-                                     image_size=args.image_size, explore=True, run_dir=args.out_dir, run_name="dqn")
-    print(f"training DQN ({args.episodes} episodes, {args.preset} configuration, scripted exploration, {args.train_box_source} box)")
+    if args.box_source not in ("fcn", "ground_truth"):
+        raise ValueError(f"box_source={args.box_source!r} is not one of: fcn, ground_truth")
+    train_args = dataclasses.replace(dqn.PRESETS[args.preset][1], env=args.env, seed=args.seed, episodes=args.episodes,
+                                     explore=True, run_dir=args.out_dir, run_name="dqn")
+    print(f"training DQN ({args.episodes} episodes, {args.preset} configuration, scripted exploration, "
+          f"{args.env.box_source} box)")
     result = dqn.train(train_args)
     history = result["history"]
-    curve = os.path.join(args.out_dir, "learning_curve_success.png")
-    plot_curves({"DQN + exploration": [[h["success"] for h in history]]}, curve, "success rate", title="training")
+    curves = {key: os.path.join(args.out_dir, f"learning_curve_{key}.png") for key in ("return", "success")}
+    for key, path in curves.items():
+        plot_curves({"DQN + exploration": [[h[key] for h in history]]}, path, key, title="training")
 
     evaluations, metrics = {}, os.path.join(args.out_dir, "evaluation.json")
     other = "ground_truth" if args.box_source == "fcn" else "fcn"
     for box_source in (args.box_source, other):
-        env = make_box_env(**{**dqn.env_kwargs(train_args), "box_source": box_source})
-        policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
-        episodes = evaluate(env, policy, range(1_000_000, 1_000_000 + args.eval_episodes), desc=f"evaluate ({box_source} box)")
-        env.close()
+        env = make_env(args.env.replace(box_source=box_source))
+        try:
+            policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
+            episodes = evaluate(env, policy, eval_seeds(args.eval_episodes), desc=f"evaluate ({box_source} box)")
+        finally:
+            env.close()
         evaluations[f"explore→dqn, {box_source} box"] = {"summary": summarize(episodes), "episodes": episodes}
     save_json(evaluations, metrics)
     print(markdown_table({name: evaluation["summary"] for name, evaluation in evaluations.items()}))
 
     if args.record_episodes:
-        env = make_box_env(**{**dqn.env_kwargs(train_args), "box_source": args.box_source}, record_to=args.recording)
-        policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
-        try:
-            record_rollouts(env, policy, args.record_episodes, seed=1_000_000)
-        finally:
-            env.close()  # writes the file's footer
+        with RerunRecorder(make_env(args.env.replace(box_source=args.box_source)), args.recording) as env:
+            policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
+            evaluate(env, policy, eval_seeds(args.record_episodes), with_reference=False, desc="record")
     print("outputs:")
     outputs = [("checkpoint", result["checkpoint"]), ("training history", os.path.join(result["run_dir"], "history.json")),
-               ("learning curve (return)", os.path.join(result["run_dir"], "learning_curve.png")),
-               ("learning curve (success)", curve), ("evaluation metrics", metrics)]
+               ("learning curve (return)", curves["return"]), ("learning curve (success)", curves["success"]),
+               ("evaluation metrics", metrics)]
     if args.record_episodes:
         outputs.append(("recording (Rerun)", args.recording))
     for what, path in outputs:

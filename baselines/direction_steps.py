@@ -18,6 +18,7 @@ import torch
 import tyro
 
 import mani_active_vision as mav
+from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.robots.orbit_controller import camera_forward
 
 
@@ -40,8 +41,7 @@ def intended(name: str, pos: torch.Tensor, pitch: float) -> torch.Tensor:
 
 def main(args: Args):
     torch.set_num_threads(1)
-    env = mav.DiscreteDirections(gym.make("ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu",
-                                          start_pose="search", sensor_configs=dict(hand_camera=dict(width=64, height=64))))
+    env = make_env(EnvConfig(start_pose="search", box_source="none"))
     base = env.unwrapped
     pitch = base.agent.controller.config.pitch
     print(f"step_size {base.step_size} m; {args.seeds} seeds x {args.steps} steps per direction\n")

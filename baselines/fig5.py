@@ -22,22 +22,26 @@ import torch
 import tyro
 
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.evaluation import evaluate, make_box_env, plot_curves, save_json, summarize
 from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
+from mani_active_vision.evaluation.report import plot_curves, spread
+from mani_active_vision.json_io import save_json
+from mani_active_vision.metrics import summarize
 
-CONDITIONS = {
-    "fixed": dict(placement="fixed", explore=False),
-    "random_explore": dict(placement="random", explore=True),
-    "random_noexplore": dict(placement="random", explore=False),
-    "random_explore_link": dict(placement="random", explore=True, with_ee_pos=True),
-    # not in the paper: the reward capped at the success share (normalized_dense), so that zooming past
-    # the success share (until the target touches the border) earns nothing more
-    "random_explore_capped_reward": dict(placement="random", explore=True, reward_mode="normalized_dense"),
+CONDITIONS = {  # name: (env options, DQN options)
+    "fixed": (dict(placement="fixed"), dict(explore=False)),
+    "random_explore": (dict(placement="random"), dict(explore=True)),
+    "random_noexplore": (dict(placement="random"), dict(explore=False)),
+    "random_explore_link": (dict(placement="random", with_ee_pos=True), dict(explore=True)),
+    # not in the paper: the reward capped at the success fraction (normalized_dense), so that zooming past
+    # the success fraction (until the target touches the border) earns nothing more
+    "random_explore_capped_reward": (dict(placement="random", reward_mode="normalized_dense"), dict(explore=True)),
     # not in the paper: the `shaped` preset of agents/dqn.py (see its docstring: episode end and bonus at
-    # success, potential shaping on share and centring, step and refusal costs, γ 0.99, 5-step returns,
-    # the last direction in the state, double DQN, mirrored transitions, 2 updates per step)
-    "random_explore_shaped": dict(placement="random", explore=True, **dqn.SHAPED),
-    "fixed_shaped": dict(placement="fixed", explore=False, **dqn.SHAPED),
+    # success, potential shaping on the target fraction and centring, step and refusal costs, γ 0.99,
+    # 5-step returns, the last direction in the state, double DQN, mirrored transitions, 2 updates per step)
+    "random_explore_shaped": (dict(placement="random"), dict(explore=True, **dqn.SHAPED)),
+    "fixed_shaped": (dict(placement="fixed"), dict(explore=False, **dqn.SHAPED)),
 }
 FIGURES = {
     "a_fixed": ["fixed"],
@@ -63,8 +67,8 @@ class Args:
     """where runs, curves and the table go"""
     plot_only: bool = False
     """only collect finished runs into curves and the table"""
-    box_source: str = "ground_truth"
-    """ground_truth or fcn"""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """the env options every condition starts from (each condition sets its own on top)"""
 
 
 def run(condition: str, seed: int, args: Args):
@@ -72,14 +76,18 @@ def run(condition: str, seed: int, args: Args):
     eval_path = os.path.join(run_dir, f"seed{seed}", "eval.json")
     if os.path.exists(eval_path):
         return
-    train_args = dqn.Args(seed=seed, episodes=args.episodes, box_source=args.box_source, run_dir=run_dir, run_name=f"seed{seed}",
-                          **CONDITIONS[condition])
+    env_options, dqn_options = CONDITIONS[condition]
+    train_args = dqn.Args(env=args.env.replace(**env_options), seed=seed, episodes=args.episodes, run_dir=run_dir,
+                          run_name=f"seed{seed}", **dqn_options)
     result = dqn.train(train_args)
-    env = make_box_env(**dqn.env_kwargs(train_args))
-    policy_kwargs = dict(then="dqn", checkpoint=result["checkpoint"]) if train_args.explore else dict(checkpoint=result["checkpoint"])
-    policy = make_policy("explore" if train_args.explore else "dqn", env, **policy_kwargs)
-    episodes = evaluate(env, policy, range(1_000_000, 1_000_000 + args.eval_episodes), with_reference=False, desc=f"eval {condition} {seed}")
-    env.close()
+    env = make_env(train_args.env)
+    try:
+        checkpoint = result["checkpoint"]
+        policy_kwargs = dict(then="dqn", checkpoint=checkpoint) if train_args.explore else dict(checkpoint=checkpoint)
+        policy = make_policy("explore" if train_args.explore else "dqn", env, **policy_kwargs)
+        episodes = evaluate(env, policy, eval_seeds(args.eval_episodes), with_reference=False, desc=f"eval {condition} {seed}")
+    finally:
+        env.close()
     save_json({"summary": summarize(episodes), "episodes": episodes}, eval_path)
 
 
@@ -98,13 +106,6 @@ def collect(args: Args) -> dict:
     return found
 
 
-def spread(values, digits: int = 2) -> str:
-    values = np.asarray(values, dtype=float)
-    if np.isnan(values).all():
-        return "–"
-    return f"{np.nanmean(values):.{digits}f} ± {np.nanstd(values):.{digits}f}"
-
-
 def report(args: Args):
     found = collect(args)
     for figure, conditions in FIGURES.items():
@@ -114,14 +115,14 @@ def report(args: Args):
                 path = os.path.join(args.out_dir, f"fig5{figure}_{key}.png")
                 plot_curves({c: [[h[key] for h in hist] for hist in found[c]["histories"]] for c in present}, path, label, title=f"Fig. 5 {figure}")
                 print(f"wrote {path}")
-    lines = ["| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval steps to success | eval final share |",
+    lines = ["| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval steps to success | eval final target fraction |",
              "|" + "---|" * 8]
     for condition, data in found.items():
         last = [np.mean([h["success"] for h in hist[-10:]]) for hist in data["histories"]]
         last_return = [np.mean([h["return"] for h in hist[-10:]]) for hist in data["histories"]]
         ev = data["evals"]
         lines.append(f"| {condition} | {len(ev)} | {spread(last)} | {spread(last_return)} | {spread([e['success'] for e in ev])} | "
-                     f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_share'] for e in ev], 3)} |")
+                     f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_target_fraction'] for e in ev], 3)} |")
     table = "\n".join(lines)
     with open(os.path.join(args.out_dir, "fig5_table.md"), "w") as f:
         f.write(table + "\n\n(mean ± std over seeds; eval: greedy policy, episodes from seed 1,000,000)\n")

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import tyro
 
-from mani_active_vision.recording import screenshots
+from mani_active_vision.recording.screenshots import screenshots
 
 
 @dataclass

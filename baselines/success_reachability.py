@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 import mani_active_vision  # noqa: F401
 from mani_active_vision.boxes import target_stats
+from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.robots.iiwa import SEARCH_POS
 from mani_active_vision.robots.orbit_controller import solve_ik
 
@@ -58,10 +59,8 @@ def candidate_positions(target_xy: np.ndarray, step: float, pitch: float, config
 
 def main(args: Args):
     torch.set_num_threads(1)
-    env = gym.make(
-        "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
-        object_set=args.object_set, placement=args.placement, sensor_configs=dict(hand_camera=dict(width=args.resolution, height=args.resolution)),
-    )
+    config = EnvConfig(start_pose="search", object_set=args.object_set, placement=args.placement, image_size=args.resolution)
+    env = gym.make(ENV_ID, **config.task_kwargs())
     base = env.unwrapped
     controller = base.agent.controller
     reachable = np.zeros((len(args.fractions), len(args.tolerances)))

@@ -37,6 +37,7 @@ from mani_active_vision.agents.fcn import (
     soft_iou_loss, summarize_counts,
 )
 from mani_active_vision.segmentation_data import load_segmentation_data
+from mani_active_vision.json_io import save_json
 
 
 @dataclass
@@ -161,8 +162,7 @@ def main(args: Args):
         if metrics["target_iou"] > best_iou:
             best_iou = metrics["target_iou"]
             save_checkpoint(best_path, model, epoch=epoch + 1, val=metrics, args=asdict(args), class_weights=weights.tolist())
-        with open(os.path.join(args.run_dir, "history.json"), "w") as f:
-            json.dump(history, f, indent=1)
+        save_json(history, os.path.join(args.run_dir, "history.json"))
         loss_name = "weighted cross-entropy" + (f" + {args.iou_loss_weight:g} × soft IoU" if args.iou_loss_weight else "")
         plot_curves(history, os.path.join(args.run_dir, "curves.png"), loss_name)
     print(f"best val target IoU {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")

@@ -1,9 +1,10 @@
 """Observation wrapper: the env's observation -> the target's bounding box, the low-dimensional state for control.
 
 `source="ground_truth"` takes the box from the wrist camera's segmentation (needs a `segmentation` obs);
-`source="fcn"` from the one-shot segmentation FCN (`mani_active_vision.agents.fcn`) on the wrist view and
-the target image (needs an `rgb` obs), keeping the mask's largest connected region only (it halves the box
-error: README "Vision"). After every observation `last_mask` holds the mask the box came from.
+`source="fcn"` from a segmenter (the one-shot FCN, `mani_active_vision.agents.fcn`) on the wrist view and the
+target image (needs an `rgb` obs), keeping the mask's largest connected region only (docs/design.md §10).
+After every observation `last_mask` holds the mask the box came from and `last_observation` the
+observation it was computed from, so that a recorder outside this wrapper logs both with the box.
 """
 
 from __future__ import annotations
@@ -23,22 +24,22 @@ class BoxState(gym.ObservationWrapper):
 
     Batched ManiSkill envs give a torch tensor (N, 4 or 7); a numpy env (`CPUGymWrapper`) gives (4 or 7,).
     `last_mask`: (N, H, W) bool torch tensor, the target mask of the latest observation (ground truth or FCN).
-    `fcn`: the model for `source="fcn"` (default: the shipped weights, `load_pretrained()`).
+    `segmenter`: for `source="fcn"`, a model with `predict(scene_rgb, target_rgb, largest_component=True)`
+    -> (N, H, W) bool, e.g. `agents.fcn.load_pretrained()` (`envs.make_env` passes it).
     """
 
-    def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False, fcn=None):
+    def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False, segmenter=None):
         super().__init__(env)
         if source not in BOX_SOURCES:
             raise ValueError(f"source={source!r} is not one of: {', '.join(BOX_SOURCES)}")
         needed = "segmentation" if source == "ground_truth" else "rgb"
         if needed not in env.unwrapped.obs_mode:
             raise ValueError(f"BoxState(source={source!r}) needs an obs_mode with {needed}, got {env.unwrapped.obs_mode!r}")
-        if source == "fcn" and fcn is None:
-            from mani_active_vision.agents.fcn import load_pretrained
-
-            fcn = load_pretrained()
-        self.fcn = fcn
+        if source == "fcn" and segmenter is None:
+            raise ValueError("BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())")
+        self.segmenter = segmenter
         self.last_mask: torch.Tensor | None = None
+        self.last_observation: dict | None = None
         self.source = source
         self.with_ee_pos = with_ee_pos
         dim = 7 if with_ee_pos else 4
@@ -50,8 +51,9 @@ class BoxState(gym.ObservationWrapper):
     def observation(self, obs):
         base = self.env.unwrapped
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
+        self.last_observation = obs
         if self.source == "fcn":
-            mask = self.fcn.predict(batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"]), largest_component=True)
+            mask = self.segmenter.predict(batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"]), largest_component=True)
         else:
             seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])
             mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]

@@ -1,4 +1,4 @@
-"""The paper's six discrete camera moves over `pd_ee_delta_pos` (DESIGN §4, the orbit frame)."""
+"""The paper's six discrete camera moves over `pd_ee_delta_pos` (docs/design.md §3, the orbit frame)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from mani_active_vision.robots.orbit_controller import camera_forward
 DIRECTIONS = ("left", "right", "forward", "backward", "up", "down")
 """left/right: a `step_size` arc around the robot's vertical axis (constant radius and height; the view
 pans left/right); forward/backward: along the camera's viewing axis (zoom in/out); up/down: vertical."""
+LEFT = DIRECTIONS.index("left")
 
 
 class DiscreteDirections(gym.ActionWrapper):
@@ -49,12 +50,13 @@ class DiscreteDirections(gym.ActionWrapper):
         step = base.step_size
         radius = torch.linalg.norm(pos[:, :2], dim=-1).clamp(min=1e-6)
         azimuth = torch.atan2(pos[:, 1], pos[:, 0])
-        turn = torch.where(idx == 0, step / radius, -step / radius)  # left = counter-clockwise seen from above
+        turn = torch.where(idx == LEFT, step / radius, -step / radius)  # left = counter-clockwise seen from above
         orbit = torch.stack([radius * torch.cos(azimuth + turn), radius * torch.sin(azimuth + turn), pos[:, 2]], -1) - pos
         forward = step * camera_forward(azimuth, controller.config.pitch)
         up = torch.zeros_like(pos)
         up[:, 2] = step
-        delta = torch.stack([orbit, orbit, forward, -forward, up, -up], 1)[torch.arange(len(idx)), idx]
+        moves = dict(left=orbit, right=orbit, forward=forward, backward=-forward, up=up, down=-up)
+        delta = torch.stack([moves[name] for name in DIRECTIONS], 1)[torch.arange(len(idx)), idx]
         if self._batched:
             return delta
         return delta[0].cpu().numpy().astype(np.float32)

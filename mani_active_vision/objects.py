@@ -1,6 +1,6 @@
 """Object sets and their builders: procedural meshes and named models from `pybullet_data`, and primitives.
 
-Split once, by a fixed rule (DESIGN §5): `train` = random_urdfs 000-799; `unseen` = random_urdfs 800-999
+Split once, by a fixed rule (docs/design.md §7): `train` = random_urdfs 000-799; `unseen` = random_urdfs 800-999
 plus the named models (duck, teddy, mug, lego), never used to train the FCN or an agent; `primitives` =
 boxes, cylinders and spheres in a small palette. Every object is scaled to a largest extent of 7-10 cm.
 """

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.objects import OBJECT_SETS
 from mani_active_vision.robots.iiwa import CAMERA_PITCH
 from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik
@@ -63,12 +64,9 @@ class SegmentationDataConfig:
 
 def make_data_env(config: SegmentationDataConfig) -> gym.Env:
     """The env a data set is rendered from (rgb + segmentation at `image_size`², CPU renderer)."""
-    size = config.image_size
-    return gym.make(
-        "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
-        num_objects=config.num_objects, object_set=config.object_set,
-        sensor_configs=dict(hand_camera=dict(width=size, height=size)),
-    )
+    env_config = EnvConfig(start_pose="search", num_objects=config.num_objects, object_set=config.object_set,
+                           image_size=config.image_size)
+    return gym.make(ENV_ID, **env_config.task_kwargs())
 
 
 def sample_camera_position(rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig) -> tuple[np.ndarray, str, np.ndarray]:

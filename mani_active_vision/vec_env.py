@@ -1,6 +1,8 @@
-"""Batched rollouts: N copies of a task stepped together, with or without a GPU (DESIGN §8).
+"""Batched rollouts: N copies of a task stepped together, with or without a GPU (docs/design.md §11).
 
-`make_vec_env(env_id, num_envs, wrappers=(...), **env_kwargs)` returns a gymnasium `VectorEnv`:
+`make_vec_env(config, num_envs)` returns `num_envs` copies of the project's env (`envs.make_env(config)`:
+the task, `DiscreteDirections` and the config's box state) as a gymnasium `VectorEnv`;
+`make_vec_env(env_id, num_envs, wrappers=(...), **env_kwargs)` does the same for any registered env:
 - CPU (`backend="cpu"`, the default without CUDA): an `AsyncVectorEnv` of `num_envs` worker processes,
   each holding one `CPUGymWrapper`-wrapped env (ManiSkill's CPU backend takes `num_envs=1` only) with one
   torch thread. Observations, rewards and infos are numpy arrays with a leading env dimension.
@@ -29,6 +31,8 @@ import gymnasium as gym
 import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
+from mani_active_vision.envs import ENV_ID, EnvConfig, wrap_env
+
 BACKENDS = ("auto", "cpu", "gpu")
 START_METHODS = ("forkserver", "spawn")
 
@@ -38,14 +42,21 @@ class WorkerCrashedError(RuntimeError):
 
 
 def make_vec_env(
-    env_id: str,
+    env_id: str | EnvConfig,
     num_envs: int,
     wrappers: Sequence[Callable[[gym.Env], gym.Env]] = (),
     backend: str = "auto",
     start_method: str = "forkserver",
     **env_kwargs,
 ) -> gym.vector.VectorEnv:
-    """`num_envs` copies of `env_id` (made with `env_kwargs`) as one vector env; see the module docstring."""
+    """`num_envs` copies of `env_id` (made with `env_kwargs`), or of the project's env for an `EnvConfig`
+(then `wrappers` go around its box state), as one vector env; see the module docstring."""
+    if isinstance(env_id, EnvConfig):
+        if env_kwargs:
+            raise ValueError(f"with an EnvConfig, options go in the config, not in env_kwargs: got {sorted(env_kwargs)}")
+        config, env_id = env_id, ENV_ID
+        env_kwargs = {k: v for k, v in config.task_kwargs().items() if k != "render_backend"}
+        wrappers = (functools.partial(wrap_env, config=config), *wrappers)
     if backend not in BACKENDS:
         raise ValueError(f"backend={backend!r} is not one of: {', '.join(BACKENDS)}")
     if start_method not in START_METHODS:
@@ -65,7 +76,7 @@ def make_vec_env(
 
 def _make_worker_env(env_id: str, wrappers: Sequence[Callable], env_kwargs: dict) -> gym.Env:
     """Runs in each worker: one thread for torch (its default pool slows every small op on a busy CPU,
-    DESIGN §9), one CPU env, the caller's wrappers. gymnasium also calls it once in the parent, to read
+    docs/design.md §12), one CPU env, the caller's wrappers. gymnasium also calls it once in the parent, to read
     the spaces from a throwaway env: the parent's torch threads are left alone."""
     if multiprocessing.parent_process() is not None:
         torch.set_num_threads(1)

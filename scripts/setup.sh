@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Idempotent set-up for a fresh Debian 12 machine (DESIGN §10):
+# Idempotent set-up for a fresh Debian 12 machine (docs/design.md §14):
 #   1. Mesa 25 lavapipe (software Vulkan) from Debian's bookworm-backports suite, which SAPIEN needs;
 #   2. a virtualenv at .venv in the repository root;
 #   3. torch 2.13.0 (local CPU wheel) *before* anything that depends on torch;

@@ -247,11 +247,25 @@ class ActiveVisionFindEnv(BaseEnv):
         return super().reset(seed=seed, options=options)
 
     def step(self, action):
+        self._check_action(action)
         self._hand_images = None
         obs, reward, terminated, truncated, info = super().step(action)
         if not self.terminate_on_success:
             terminated = torch.zeros_like(terminated)
         return obs, reward, terminated, truncated, info
+
+    def _check_action(self, action):
+        """ManiSkill fails on a wrong action with a bare assertion or TypeError: say what is expected."""
+        if action is None or isinstance(action, dict):
+            return
+        shape = tuple(np.shape(action.cpu() if isinstance(action, torch.Tensor) else action))
+        single = tuple(self.single_action_space.shape)
+        if shape not in (single, (self.num_envs, *single)):
+            expected = f"{single} or {(1, *single)}" if self.num_envs == 1 else f"{(self.num_envs, *single)}"
+            raise ValueError(
+                f"action of shape {shape} ({action!r:.40}) does not fit control_mode={self.control_mode!r}: expected a "
+                f"Cartesian step of shape {expected} (metres). For the six discrete directions (an index), wrap the "
+                "env in mani_active_vision.DiscreteDirections, or build it with mani_active_vision.make_env")
 
     def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
         self._hand_images = None

@@ -11,7 +11,7 @@ torch.set_num_threads(1)
 _ENVS = {}
 
 
-def make_env(**kwargs):
+def cached_task(**kwargs):
     """A cached `ActiveVisionFind-v0` at 64² (small and fast); callers must reset it themselves."""
     kwargs = {"obs_mode": "rgb+segmentation", "render_backend": "cpu",
               "sensor_configs": dict(hand_camera=dict(width=64, height=64)), **kwargs}

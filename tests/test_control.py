@@ -1,22 +1,27 @@
 """Control: the DQN's pieces, the policies, the metrics and a short end-to-end training run."""
 
 import dataclasses
+import json
 import math
 
 import numpy as np
 import pytest
 import torch
-from conftest import make_env
+from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.evaluation import Trajectory, episode_metrics, evaluate, markdown_table, summarize
 from mani_active_vision.agents.policies import DOWN, FORWARD, LEFT, POLICIES, RIGHT, UP, ExplorePolicy, make_policy
+from mani_active_vision.agents.q_network import save_q_network
 from mani_active_vision.box_state import BoxState
+from mani_active_vision.envs import EnvConfig
+from mani_active_vision.evaluation.protocol import evaluate
+from mani_active_vision.evaluation.report import markdown_table
+from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
 
 
 def _box_env(**kwargs):
-    return BoxState(mav.DiscreteDirections(make_env(**kwargs)))
+    return BoxState(mav.DiscreteDirections(cached_task(**kwargs)))
 
 
 def _batch(n=64, state_dim=4, seed=0):
@@ -94,7 +99,7 @@ def test_exploration_hands_over_once_the_target_is_seen(tmp_path):
 def test_every_policy_acts_in_the_action_space(tmp_path):
     env = _box_env(placement="random")
     checkpoint = str(tmp_path / "q.pt")
-    dqn.save_checkpoint(checkpoint, dqn.QNetwork(4), dqn.Args())
+    save_q_network(checkpoint, dqn.QNetwork(4), dqn.Args())
     kwargs = {"dqn": {"checkpoint": checkpoint}, "explore": {"then": "dqn", "checkpoint": checkpoint}}
     for name in POLICIES:
         policy = make_policy(name, env, **kwargs.get(name, {}))
@@ -105,12 +110,12 @@ def test_every_policy_acts_in_the_action_space(tmp_path):
             assert action.shape == (1,) and action.dtype == np.int64 and env.action_space.contains(int(action[0])), name
             obs, _, _, _, info = env.step(action)
     with pytest.raises(ValueError, match="expects a state of 4"):
-        make_policy("dqn", BoxState(mav.DiscreteDirections(make_env(placement="random")), with_ee_pos=True), checkpoint=checkpoint)
+        make_policy("dqn", BoxState(mav.DiscreteDirections(cached_task(placement="random")), with_ee_pos=True), checkpoint=checkpoint)
 
 
-def _trajectory(visible, success, share, rewards):
+def _trajectory(visible, success, target_fraction, rewards):
     t = Trajectory()
-    t.visible, t.success, t.share, t.rewards = list(visible), list(success), list(share), list(rewards)
+    t.visible, t.success, t.target_fraction, t.rewards = list(visible), list(success), list(target_fraction), list(rewards)
     return t
 
 
@@ -119,7 +124,7 @@ def test_metrics_on_hand_made_trajectories():
     t = _trajectory([0, 0, 1, 1, 1], [0, 0, 0, 1, 0], [0, 0, 0.05, 0.12, 0.09], [0, 0.05, 0.12, 0.09])
     m = episode_metrics(t, reference_steps=2)
     assert m == {"success": 1.0, "success_final": 0.0, "steps_to_see": 2.0, "steps_to_success": 3.0, "spl": pytest.approx(2 / 3),
-                 "final_share": 0.09, "return": pytest.approx(0.26)}
+                 "final_target_fraction": 0.09, "return": pytest.approx(0.26)}
     assert episode_metrics(t, reference_steps=7)["spl"] == 1.0  # the agent's path is the shortest known
     assert episode_metrics(t)["spl"] == 1.0
     never = episode_metrics(_trajectory([1, 1], [0, 0], [0.01, 0.02], [0.02]), reference_steps=2)
@@ -130,15 +135,19 @@ def test_metrics_on_hand_made_trajectories():
 
 
 def test_a_short_training_run_end_to_end(tmp_path):
-    env = _box_env(placement="random", max_episode_steps=40)  # short episodes: the same code, less time
-    args = dqn.Args(episodes=2, learning_starts=20, target_update_steps=50, run_dir=str(tmp_path))
-    result = dqn.train(args, env=env, progress=False)
+    short = EnvConfig(max_episode_steps=40)  # short episodes: the same code, less time
+    args = dqn.Args(env=short, episodes=2, learning_starts=20, target_update_steps=50, run_dir=str(tmp_path))
+    result = dqn.train(args, progress=False)
     assert len(result["history"]) == 2 and result["history"][1]["epsilon"] == pytest.approx(0.02)
     assert sum(h["learner_steps"] for h in result["history"]) > 0  # the target was seen, the DQN acted
     assert not math.isnan(result["history"][-1]["td_loss"])
     checkpoint = torch.load(result["checkpoint"], weights_only=True)
     assert checkpoint["config"]["hidden_units"] == 20 and checkpoint["config"]["state_dim"] == 4
-    assert (tmp_path / "random_explore_seed0" / "learning_curve.png").stat().st_size > 1000
+    assert EnvConfig.from_dict(checkpoint["config"]["env"]) == short  # the checkpoint carries its env
+    text = (tmp_path / "random_explore_seed0" / "history.json").read_text()
+    history = json.loads(text, parse_constant=lambda name: pytest.fail(f"history.json holds {name}: not JSON"))
+    assert history["complete"] and len(history["history"]) == 2
+    env = _box_env(placement="random", max_episode_steps=40)
     policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"])
     episodes = evaluate(env, policy, [1_000_000], with_reference=False)
     assert set(episodes[0]) >= {"success", "spl", "steps_to_see", "return"}
@@ -150,29 +159,31 @@ def test_mirrored_transitions_and_shaping_potentials():
     assert not dqn.mirror_state(np.zeros(4)).any()  # unseen stays unseen
     last_left = np.array([0.1, 0.2, 0.3, 0.4, 1, 0, 0, 0, 0, 0])  # with the last direction: left -> right
     np.testing.assert_allclose(dqn.mirror_state(last_left), [0.6, 0.2, 0.3, 0.4, 0, 1, 0, 0, 0, 0])
-    info = lambda share: {"target_fraction": torch.tensor([share])}  # noqa: E731
+    def info(fraction):
+        return {"target_fraction": torch.tensor([fraction])}
+
     assert dqn.potential(info(0.02), 0.05, "none") == 0.0
-    assert dqn.potential(info(0.02), 0.05, "share") == pytest.approx(0.4)
-    assert dqn.potential(info(0.2), 0.05, "share") == 1.0
-    assert [dqn.potential(info(s), 0.05, "log_share") for s in (0.0, 0.0005, 0.005, 0.05, 0.5)] == pytest.approx([0, 0, 0.5, 1, 1], abs=1e-6)
+    assert dqn.potential(info(0.02), 0.05, "fraction") == pytest.approx(0.4)
+    assert dqn.potential(info(0.2), 0.05, "fraction") == 1.0
+    fractions = (0.0, 0.0005, 0.005, 0.05, 0.5)
+    assert [dqn.potential(info(f), 0.05, "log_fraction") for f in fractions] == pytest.approx([0, 0, 0.5, 1, 1], abs=1e-6)
     seen = {"target_fraction": torch.tensor([0.005]), "target_center_offset": torch.tensor([0.1])}
-    assert dqn.potential(seen, 0.05, "log_share_centred") == pytest.approx(0.5 * (0.5 + 0.8))
+    assert dqn.potential(seen, 0.05, "log_fraction_centred") == pytest.approx(0.5 * (0.5 + 0.8))
     unseen = {"target_fraction": torch.tensor([0.0]), "target_center_offset": torch.tensor([float("inf")])}
-    assert dqn.potential(unseen, 0.05, "log_share_centred") == 0.0
+    assert dqn.potential(unseen, 0.05, "log_fraction_centred") == 0.0
     with pytest.raises(ValueError, match="shaping='loud' is not one of"):
-        dqn.train(dqn.Args(shaping="loud"), env=None, progress=False)
+        dqn.train(dqn.Args(shaping="loud"), progress=False)
 
 
 def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
-    env = _box_env(placement="random", max_episode_steps=40, terminate_on_success=True)
-    args = dqn.Args(**dqn.SHAPED, episodes=2, learning_starts=20, run_dir=str(tmp_path))
-    result = dqn.train(args, env=env, progress=False)
+    args = dqn.Args(**dqn.SHAPED, env=EnvConfig(max_episode_steps=40), episodes=2, learning_starts=20, run_dir=str(tmp_path))
+    result = dqn.train(args, progress=False)
     learner_steps = sum(h["learner_steps"] for h in result["history"])
     assert learner_steps > 0 and result["transitions"] == 2 * learner_steps
     config = torch.load(result["checkpoint"], weights_only=True)["config"]
     assert {k: config[k] for k in dqn.SHAPED} == dqn.SHAPED and config["state_dim"] == 4 + 6  # box + last direction
-    with pytest.raises(ValueError, match="cannot be combined with with_ee_pos"):
-        dqn.train(dataclasses.replace(args, with_ee_pos=True), env=env, progress=False)
+    with pytest.raises(ValueError, match="cannot be combined with env.with_ee_pos"):
+        dqn.train(dataclasses.replace(args, env=args.env.replace(with_ee_pos=True)), progress=False)
 
 
 def test_dqn_policy_with_last_action_sees_its_own_previous_direction():

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 import rerun as rr
 import rerun.chunk
-from conftest import make_env
+from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.recording import RerunRecorder, RerunVectorRecorder, blueprint, screenshots
+from mani_active_vision.recording import RerunRecorder, RerunVectorRecorder, blueprint
+from mani_active_vision.recording.screenshots import screenshots
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -66,9 +67,8 @@ def column_by_step(path, entity, column):
 
 def test_short_recording_verifies_with_expected_rows_and_blueprint(tmp_path):
     path = tmp_path / "short.rrd"
-    recorder = RerunRecorder(fresh_env(), str(path))
-    env = BoxState(recorder)  # the ground-truth BoxState exposes last_mask, like source="fcn" will
-    recorder.show_masks_of(env)
+    box_state = BoxState(fresh_env())  # the recorder logs its mask (the ground truth's here, the FCN's with "fcn")
+    env = RerunRecorder(box_state, str(path))
     actions = []
     try:
         for episode, steps in enumerate((5, 3)):
@@ -76,7 +76,7 @@ def test_short_recording_verifies_with_expected_rows_and_blueprint(tmp_path):
             for t in range(steps):
                 actions.append(t % len(mav.DIRECTIONS))
                 env.step(actions[-1])
-        gt_mask = env.last_mask[0].numpy()
+        gt_mask = box_state.last_mask[0].numpy()
         target_id = int(env.unwrapped.target_seg_id[0])
         segmentation = env.unwrapped._hand_camera_images()["segmentation"][0, ..., 0].numpy()
     finally:
@@ -140,7 +140,7 @@ def test_exception_mid_rollout_leaves_a_valid_file(tmp_path):
 def test_ctrl_c_leaves_a_valid_file(tmp_path):
     path = tmp_path / "interrupted.rrd"
     process = subprocess.Popen(
-        [sys.executable, os.path.join(ROOT, "baselines", "record.py"), "--episodes", "50", "--image-size", "64",
+        [sys.executable, os.path.join(ROOT, "baselines", "record.py"), "--episodes", "50", "--env.image-size", "64",
          "--out", str(path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 180
@@ -164,7 +164,7 @@ def test_ctrl_c_leaves_a_valid_file(tmp_path):
 
 
 def test_unwritable_path_fails_before_the_rollout(tmp_path):
-    env = mav.DiscreteDirections(make_env(start_pose="search"))  # never closed here: the cached env
+    env = mav.DiscreteDirections(cached_task(start_pose="search"))  # never closed here: the cached env
     blocker = tmp_path / "a_file"
     blocker.write_text("")
     with pytest.raises(OSError, match="cannot write the recording"):

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from conftest import make_env
+from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.robots.orbit_controller import camera_forward, forward_position, solve_ik
@@ -34,7 +34,7 @@ def test_ik_and_forward_kinematics_agree():
 
 @pytest.mark.parametrize("direction", range(6))
 def test_each_direction_moves_one_step_its_way_and_keeps_the_rule(direction):
-    env = mav.DiscreteDirections(make_env(start_pose="search"))
+    env = mav.DiscreteDirections(cached_task(start_pose="search"))
     env.reset(seed=0)
     base = env.unwrapped
     step = base.step_size
@@ -62,7 +62,7 @@ def test_each_direction_moves_one_step_its_way_and_keeps_the_rule(direction):
 
 
 def test_refused_steps_hold_the_camera_untilted():
-    env = mav.DiscreteDirections(make_env(start_pose="search"))
+    env = mav.DiscreteDirections(cached_task(start_pose="search"))
     env.reset(seed=0)
     base = env.unwrapped
     refused = 0
@@ -83,7 +83,7 @@ def test_refused_steps_hold_the_camera_untilted():
 
 
 def test_sky_start_points_up_then_settles_into_the_rule():
-    env = mav.DiscreteDirections(make_env(start_pose="sky"))
+    env = mav.DiscreteDirections(cached_task(start_pose="sky"))
     env.reset(seed=0)
     base = env.unwrapped
     assert torch.allclose(base.agent.robot.get_qpos(), torch.zeros(1, 7), atol=1e-4)
@@ -96,7 +96,7 @@ def test_sky_start_points_up_then_settles_into_the_rule():
 
 
 def test_batched_discrete_actions_are_validated():
-    env = mav.DiscreteDirections(make_env(start_pose="search"))
+    env = mav.DiscreteDirections(cached_task(start_pose="search"))
     env.reset(seed=0)
     for bad, error in [(6, ValueError), (-1, ValueError), (1.5, TypeError), (np.array([1, 2]), ValueError)]:
         with pytest.raises(error) as err:

@@ -4,14 +4,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import make_env
+from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.objects import object_set
 
 
 def test_registered_and_observation_layout():
-    env = make_env(start_pose="search")
+    env = cached_task(start_pose="search")
     obs, info = env.reset(seed=0)
     cam = obs["sensor_data"]["hand_camera"]
     assert cam["rgb"].shape == (1, 64, 64, 3) and cam["rgb"].dtype == torch.uint8
@@ -26,7 +26,7 @@ def test_registered_and_observation_layout():
 
 
 def test_target_image_shows_the_target_alone_centred():
-    env = make_env()
+    env = cached_task()
     for seed in range(3):
         obs, _ = env.reset(seed=seed)
         image = obs["extra"]["target_image"][0].numpy().astype(int)
@@ -40,7 +40,7 @@ def test_target_image_shows_the_target_alone_centred():
 
 
 def test_reward_is_share_of_target_pixels():
-    env = mav.DiscreteDirections(make_env(start_pose="search", placement="fixed"))
+    env = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed"))
     obs, _ = env.reset(seed=3)
     seen = 0
     for step in range(25):
@@ -55,7 +55,7 @@ def test_reward_is_share_of_target_pixels():
 
 
 def test_reward_modes():
-    env = mav.DiscreteDirections(make_env(start_pose="search", placement="fixed", reward_mode="normalized_dense"))
+    env = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", reward_mode="normalized_dense"))
     env.reset(seed=0)
     for _ in range(6):
         _, reward, _, _, info = env.step(0)
@@ -75,7 +75,7 @@ def _rollout(env, seed, actions):
 
 
 def test_same_seed_same_episode_and_different_seeds_differ():
-    env = mav.DiscreteDirections(make_env(start_pose="search"))
+    env = mav.DiscreteDirections(cached_task(start_pose="search"))
     actions = [0, 0, 2, 4, 1, 3]
     a = _rollout(env, 7, actions)
     b = _rollout(env, 7, actions)
@@ -88,7 +88,7 @@ def test_object_sets_are_disjoint():
     train, unseen = object_set("train"), object_set("unseen")
     assert len(train) == 800 and len(unseen) == 204
     assert not {m.mesh_path for m in train} & {m.mesh_path for m in unseen}
-    env = make_env(object_set="unseen", num_objects=3)
+    env = cached_task(object_set="unseen", num_objects=3)
     env.reset(seed=0)
     names = {m.name for m in unseen}
     assert set(env.unwrapped.object_names[0]) <= names
@@ -115,18 +115,18 @@ def test_bad_options_are_clear_errors(kwargs, words):
 
 
 def test_obs_modes_rgb_and_state():
-    env = make_env(obs_mode="rgb", start_pose="search")
+    env = cached_task(obs_mode="rgb", start_pose="search")
     obs, info = env.reset(seed=0)
     assert set(obs["sensor_data"]["hand_camera"]) == {"rgb"}
     _, reward, *_ = env.step(np.zeros(3, dtype=np.float32))
     assert float(reward[0]) == pytest.approx(float(env.unwrapped.evaluate()["target_fraction"][0]))
-    env = make_env(obs_mode="state", start_pose="search")
+    env = cached_task(obs_mode="state", start_pose="search")
     obs, _ = env.reset(seed=0)
     assert obs.ndim == 2 and obs.dtype == torch.float32 and torch.isfinite(obs).all()
 
 
 def test_success_does_not_end_the_episode_unless_asked():
-    env = make_env(start_pose="search")
+    env = cached_task(start_pose="search")
     env.reset(seed=0)
     base = env.unwrapped
     default_fraction = base.success_fraction

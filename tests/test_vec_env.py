@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 
 import mani_active_vision as mav
-from mani_active_vision.box_state import BoxState
+from mani_active_vision.envs import EnvConfig
 from mani_active_vision.vec_env import CPUVectorEnv, WorkerCrashedError, make_vec_env
 
 
 @pytest.fixture(scope="module")
 def pool():
-    env = make_vec_env("ActiveVisionFind-v0", 2, wrappers=(mav.DiscreteDirections, functools.partial(BoxState, with_ee_pos=True)),
-                       start_pose="search", sensor_configs=dict(hand_camera=dict(width=64, height=64)))
+    env = make_vec_env(EnvConfig(start_pose="search", with_ee_pos=True), 2)  # the project's env in each worker
     yield env
     env.close()
     assert not any(p.is_alive() for p in env.processes)
@@ -97,11 +96,23 @@ def test_error_in_a_worker_reaches_the_parent():
     assert not any(p.is_alive() for p in env.processes)
 
 
+def test_a_direction_index_without_discrete_directions_says_what_to_do():
+    env = make_vec_env("ActiveVisionFind-v0", 1, sensor_configs=dict(hand_camera=dict(width=32, height=32)))
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match=r"shape \(\).*expected a Cartesian step of shape \(3,\).*DiscreteDirections"):
+            env.step(np.array([2]))
+    finally:
+        env.close()
+
+
 def test_bad_arguments_name_the_valid_values():
     with pytest.raises(ValueError, match="backend='tpu' is not one of: auto, cpu, gpu"):
         make_vec_env("ActiveVisionFind-v0", 2, backend="tpu")
     with pytest.raises(ValueError, match="num_envs=0"):
         make_vec_env("ActiveVisionFind-v0", 0)
+    with pytest.raises(ValueError, match="options go in the config"):
+        make_vec_env(EnvConfig(), 2, start_pose="search")
 
 
 def test_brdf_table_is_a_physical_split_sum():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from conftest import make_env
+from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents.fcn import (
@@ -24,7 +24,7 @@ README "Vision"), less a margin for the batch's small size."""
 
 def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15)):
     config = SegmentationDataConfig(object_set=object_set, views_per_scene=views, view_mode_probs=mode_probs)
-    env = make_env(object_set=object_set)
+    env = cached_task(object_set=object_set)
     parts = [render_scene_views(env, seed, np.random.default_rng([0, seed]), config) for seed in scenes]
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
@@ -188,16 +188,19 @@ def test_largest_component_keeps_the_biggest_region_or_nothing():
 
 
 def test_box_state_from_fcn_and_its_last_mask():
-    env = BoxState(mav.DiscreteDirections(make_env(start_pose="search", placement="fixed", obs_mode="rgb")), source="fcn")
+    env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb")), source="fcn",
+                   segmenter=load_pretrained())
     obs, info = env.reset(seed=0)
     for action in (0, 0, 0, 2):
         obs, _, _, _, info = env.step(action)
     assert obs.shape == (1, 4) and env.last_mask.shape == (1, 64, 64) and env.last_mask.dtype == torch.bool
     assert torch.equal(obs, mav.mask_to_box(env.last_mask))
-    ground_truth = BoxState(make_env(start_pose="search", placement="fixed"))
+    ground_truth = BoxState(cached_task(start_pose="search", placement="fixed"))
     obs, info = ground_truth.reset(seed=0)
     assert torch.equal(obs, mav.mask_to_box(ground_truth.last_mask)) and torch.allclose(obs, info["target_bbox"])
     with pytest.raises(ValueError, match="needs an obs_mode with segmentation"):
-        BoxState(make_env(obs_mode="rgb"), source="ground_truth")
+        BoxState(cached_task(obs_mode="rgb"), source="ground_truth")
     with pytest.raises(ValueError, match="is not one of: ground_truth, fcn"):
-        BoxState(make_env(), source="yolo")
+        BoxState(cached_task(), source="yolo")
+    with pytest.raises(ValueError, match="needs segmenter="):
+        BoxState(cached_task(), source="fcn")

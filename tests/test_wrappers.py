@@ -4,7 +4,7 @@ import gymnasium as gym
 import h5py
 import numpy as np
 import torch
-from conftest import make_env
+from conftest import cached_task
 from gymnasium.utils.env_checker import check_env
 from mani_skill.utils.wrappers import RecordEpisode
 from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
@@ -31,7 +31,7 @@ def test_gymnasium_env_checker_passes():
 
 
 def test_record_episode_writes_the_trajectory(tmp_path):
-    env = RecordEpisode(make_env(start_pose="search"), output_dir=str(tmp_path), save_video=False, save_trajectory=True)
+    env = RecordEpisode(cached_task(start_pose="search"), output_dir=str(tmp_path), save_video=False, save_trajectory=True)
     env = mav.DiscreteDirections(env)
     env.reset(seed=0)
     for a in [0, 2, 4]:
@@ -46,7 +46,7 @@ def test_record_episode_writes_the_trajectory(tmp_path):
 
 
 def test_box_state_matches_the_ground_truth_box():
-    env = BoxState(mav.DiscreteDirections(make_env(start_pose="search", placement="fixed")), with_ee_pos=True)
+    env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed")), with_ee_pos=True)
     obs, info = env.reset(seed=0)
     for a in [0, 0, 0, 2, 2]:
         obs, _, _, _, info = env.step(a)

@@ -40,7 +40,7 @@ class IiwaWristCam(BaseAgent):
     uid = "iiwa_wristcam"
     urdf_path = os.path.join(pybullet_data.getDataPath(), "kuka_iiwa", "model.urdf")
     fix_root_link = True
-    # The hulls of link 5 and link 7 touch at rest (DESIGN §4): self-collision would push the arm apart.
+    # The hulls of link 5 and link 7 touch at rest (docs/design.md §4): self-collision would push the arm apart.
     disable_self_collisions = True
 
     keyframes = dict(
@@ -49,7 +49,7 @@ class IiwaWristCam(BaseAgent):
     )
 
     # Stiff drives: 1e3/1e2 moved only ~40% of a 5 cm step per control step; 1e5/1e3 with force limit
-    # 1000 moves all of it without joint 2 lagging (DESIGN §4).
+    # 1000 moves all of it without joint 2 lagging (docs/design.md §4).
     stiffness = 1e5
     damping = 1e3
     force_limit = 1000

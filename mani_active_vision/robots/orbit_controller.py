@@ -1,7 +1,7 @@
 """`pd_ee_delta_pos` for the iiwa: Cartesian camera steps whose orientation follows the position.
 
 The camera looks outward from the robot's vertical axis, pitched down by a fixed angle, horizon level
-(DESIGN §4, the "orbit" frame). With joints 3 and 5 held at zero and joint 7 fixed, joints 2, 4, 6 move in
+(docs/design.md §3, the "orbit" frame). With joints 3 and 5 held at zero and joint 7 fixed, joints 2, 4, 6 move in
 one vertical plane that joint 1 turns about the base axis, so inverse kinematics is closed-form: joint 1 is
 the camera's azimuth and joints 2, 4, 6 solve a planar three-link chain. It is exact, needs no iterations,
 is batched in torch and runs unchanged on the GPU backend.
@@ -9,7 +9,7 @@ is batched in torch and runs unchanged on the GPU backend.
 Steps are applied to the previous *target*, not the measured pose, so the lattice of positions is exact.
 A step is refused (the arm holds, `refused` is set) when its solution breaks a joint limit, bends the
 elbow past its safe branch (joint 4 > -0.3 rad), leaves the workspace bounds, or jumps a joint by more
-than `max_joint_step` (the elbow-flip guard measured in DESIGN §4).
+than `max_joint_step` (the elbow-flip guard measured in docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ class OrbitEEPosController(PDJointPosController):
 @dataclass
 class OrbitEEPosControllerConfig(PDJointPosControllerConfig):
     pitch: float = math.radians(60)
-    """camera pitch below the horizon (rad); 60° measured best for zooming in (DESIGN §4)"""
+    """camera pitch below the horizon (rad); 60° measured best for zooming in (docs/design.md §3)"""
     max_step: float = 0.1
     """largest commanded move per axis and step (m)"""
     entry_pos: tuple = (0.30, 0.0, 0.90)

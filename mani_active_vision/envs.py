@@ -1,0 +1,119 @@
+"""One env config and one way to build an env from it (docs/design.md §2).
+
+    config = EnvConfig(box_source="fcn", object_set="unseen")
+    env = make_env(config)                # ActiveVisionFind-v0 -> DiscreteDirections -> BoxState
+    env = RerunRecorder(make_env(config), "recordings/run.rrd")   # recorded (mani_active_vision.recording)
+
+Scripts nest `EnvConfig` in their arguments (`--env.object-set unseen`), DQN checkpoints store it, and
+evaluation reads it back from them. A new env option is a field here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import gymnasium as gym
+
+import mani_active_vision.tasks.active_vision_find  # noqa: F401  (registers ActiveVisionFind-v0)
+from mani_active_vision.agents.fcn import load_pretrained
+from mani_active_vision.box_state import BOX_SOURCES, BoxState
+from mani_active_vision.directions import DiscreteDirections
+
+ENV_ID = "ActiveVisionFind-v0"
+BOX_SOURCE_CHOICES = (*BOX_SOURCES, "none")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Every option of the env a script or a checkpoint needs (the task's own are checked by the task)."""
+
+    num_objects: int = 5
+    """objects on the floor, 1-8; the first is the target"""
+    object_set: str = "train"
+    """train (random_urdfs 000-799), unseen (800-999 + named models) or primitives"""
+    placement: str = "random"
+    """random, or fixed (the same scene every episode: the paper's first experiment)"""
+    start_pose: str = "sky"
+    """sky (pointing up, the paper's) or search (camera at radius 0.30 m, height 0.90 m)"""
+    step_size: float = 0.05
+    """metres per discrete step, at most 0.1"""
+    success_fraction: float = 0.05
+    """the target's share of the image needed for success (docs/design.md §6)"""
+    success_center_tol: float = 0.15
+    """largest distance of the target's centroid from the image centre, as a fraction of the width"""
+    terminate_on_success: bool = False
+    """end the episode at the first success (the paper's agent keeps its focus: off)"""
+    reward_mode: str = "dense"
+    """dense (the target's share of the image: the paper's), normalized_dense or sparse"""
+    image_size: int = 64
+    """side of the wrist camera image in pixels (the task's own default is 128)"""
+    target_image_size: int = 64
+    """side of the target image in pixels"""
+    max_episode_steps: int = 100
+    """steps before an episode is truncated"""
+    box_source: str = "ground_truth"
+    """the box state: ground_truth (segmentation), fcn (the one-shot FCN on rgb) or none (raw observations)"""
+    fcn_weights: str = ""
+    """FCN checkpoint for box_source=fcn (empty: the shipped agents/weights/fcn.pt)"""
+    with_ee_pos: bool = False
+    """append the camera's commanded position to the box (the paper's "link state")"""
+
+    def __post_init__(self):
+        if self.box_source not in BOX_SOURCE_CHOICES:
+            raise ValueError(f"box_source={self.box_source!r} is not one of: {', '.join(BOX_SOURCE_CHOICES)}")
+        if self.with_ee_pos and self.box_source == "none":
+            raise ValueError("with_ee_pos appends to the box state: it needs box_source ground_truth or fcn")
+        if not (isinstance(self.image_size, int) and self.image_size >= 8):
+            raise ValueError(f"image_size={self.image_size!r} must be an integer of at least 8")
+        if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
+            raise ValueError(f"max_episode_steps={self.max_episode_steps!r} must be a positive integer")
+
+    def task_kwargs(self) -> dict:
+        """Keyword arguments of `gym.make(ENV_ID, ...)` for this config (one env, CPU renderer)."""
+        return dict(
+            obs_mode="rgb+segmentation",
+            render_backend="cpu",
+            max_episode_steps=self.max_episode_steps,
+            sensor_configs=dict(hand_camera=dict(width=self.image_size, height=self.image_size)),
+            num_objects=self.num_objects,
+            object_set=self.object_set,
+            placement=self.placement,
+            start_pose=self.start_pose,
+            step_size=self.step_size,
+            success_fraction=self.success_fraction,
+            success_center_tol=self.success_center_tol,
+            terminate_on_success=self.terminate_on_success,
+            reward_mode=self.reward_mode,
+            target_image_size=self.target_image_size,
+        )
+
+    def replace(self, **changes) -> EnvConfig:
+        """A copy with `changes`; unknown names are a `TypeError` that lists the valid ones."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            valid = ", ".join(f.name for f in dataclasses.fields(self))
+            raise TypeError(f"EnvConfig has no option {', '.join(sorted(unknown))}; options: {valid}")
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_dict(cls, options: dict) -> EnvConfig:
+        """The config a checkpoint stored (`dataclasses.asdict`); unknown keys are an error."""
+        return cls().replace(**options)
+
+
+def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
+    """`DiscreteDirections`, then `BoxState` as `config` says, around a made task (also inside vector-env
+    workers). `segmenter`: the FCN for box_source=fcn (default: loaded from `config.fcn_weights`)."""
+    env = DiscreteDirections(env)
+    if config.box_source == "none":
+        return env
+    if config.box_source == "fcn" and segmenter is None:
+        segmenter = load_pretrained(config.fcn_weights or None)
+    return BoxState(env, source=config.box_source, with_ee_pos=config.with_ee_pos, segmenter=segmenter)
+
+
+def make_env(config: EnvConfig = EnvConfig(), segmenter=None) -> gym.Env:
+    """The project's env: `ActiveVisionFind-v0` (one env, CPU renderer) with the six directions and the
+    box state of `config`. Record it with `mani_active_vision.recording.RerunRecorder(make_env(...), path)`."""
+    return wrap_env(gym.make(ENV_ID, **config.task_kwargs()), config, segmenter)

@@ -1,0 +1,60 @@
+"""Reports: markdown tables of episode summaries, mean ± spread over runs, and learning-curve plots."""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display on the machines this runs on
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def markdown_table(rows: dict[str, dict]) -> str:
+    """rows: name -> `metrics.summarize` output; one row each, mean ± std."""
+    header = ("| policy | episodes | success | success at end | steps to see | steps to success | SPL "
+              "| final target fraction | return |")
+    lines = [header, "|" + "---|" * 9]
+    for name, s in rows.items():
+        def cell(key, fmt="{:.2f}"):
+            return "–" if math.isnan(s[key]) else f"{fmt.format(s[key])} ± {fmt.format(s[key + '_std'])}"
+
+        lines.append(f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | "
+                     f"{cell('steps_to_see', '{:.1f}')} | {cell('steps_to_success', '{:.1f}')} | {s['spl']:.2f} | "
+                     f"{cell('final_target_fraction', '{:.3f}')} | {cell('return')} |")
+    return "\n".join(lines)
+
+
+def spread(values, digits: int = 2) -> str:
+    """"mean ± std" of values (None and NaN left out), "–" when there are none."""
+    values = np.asarray([np.nan if v is None else v for v in values], dtype=float)
+    if np.isnan(values).all():
+        return "–"
+    return f"{np.nanmean(values):.{digits}f} ± {np.nanstd(values):.{digits}f}"
+
+
+def moving_average(values, window: int) -> np.ndarray:
+    values = np.asarray(values, dtype=float)
+    kernel = np.ones(min(window, len(values)))
+    return np.convolve(values, kernel, "valid") / len(kernel)
+
+
+def plot_curves(curves: dict[str, list], path: str, ylabel: str, window: int = 10, title: str = ""):
+    """Learning curves: label -> per-seed lists of per-episode values; mean ± std over seeds of the
+    moving average (window episodes) of each."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, runs in curves.items():
+        smooth = np.stack([moving_average(r, window) for r in runs])
+        mean, std = smooth.mean(0), smooth.std(0)
+        x = np.arange(len(mean)) + len(runs[0]) - len(mean) + 1
+        ax.plot(x, mean, label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
+        ax.fill_between(x, mean - std, mean + std, alpha=0.25)
+    ax.set_xlabel("training episode")
+    ax.set_ylabel(f"{ylabel} ({window}-episode moving average)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
