@@ -179,8 +179,14 @@ class NStepWindow:
         return out
 
 
-def td_loss(q_network: QNetwork, target_network: QNetwork, batch: dict, gamma: float, double_dqn: bool = False,
-            huber: bool = False) -> torch.Tensor:
+def td_loss(
+    q_network: QNetwork,
+    target_network: QNetwork,
+    batch: dict,
+    gamma: float,
+    double_dqn: bool = False,
+    huber: bool = False,
+) -> torch.Tensor:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
     (`steps` = 1 where the batch does not say)."""
     with torch.no_grad():
@@ -247,7 +253,9 @@ class LearnerReward:
         reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
         self.previous = current
         refused = first_env(info, "refused")
-        return reward + args.success_bonus * first_env(info, "success") - args.refusal_penalty * refused - args.step_cost
+        return (
+            reward + args.success_bonus * first_env(info, "success") - args.refusal_penalty * refused - args.step_cost
+        )
 
 
 def default_run_name(args: Args) -> str:
@@ -308,11 +316,14 @@ def train(args: Args, progress: bool = True) -> dict:
                 reward_now = learner_reward(reward, info)
                 if learner_acts:  # the script's steps are not the learner's experience
                     next_state = learner.state(next_obs)[0]
-                    for s0, a0, discounted, s_n, ended, steps in window.push(state, action[0], reward_now, next_state,
-                                                                              terminated, done):
+                    for s0, a0, discounted, s_n, ended, steps in window.push(
+                        state, action[0], reward_now, next_state, terminated, done
+                    ):
                         buffer.add(s0, a0, discounted, s_n, ended, steps)
                         if args.mirror_augment:
-                            buffer.add(mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps)
+                            buffer.add(
+                                mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps
+                            )
                     learner_steps += 1
                 obs = next_obs
                 global_step += 1
@@ -329,21 +340,49 @@ def train(args: Args, progress: bool = True) -> dict:
                     target_network.load_state_dict(q_network.state_dict())
 
             metrics = episode_metrics(trajectory)
-            history.append({"episode": episode, "epsilon": learner.epsilon, "learner_steps": learner_steps,
-                            "td_loss": float(np.mean(losses)) if losses else math.nan, **metrics})
-            bar.set_postfix(ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}")
+            history.append(
+                {
+                    "episode": episode,
+                    "epsilon": learner.epsilon,
+                    "learner_steps": learner_steps,
+                    "td_loss": float(np.mean(losses)) if losses else math.nan,
+                    **metrics,
+                }
+            )
+            bar.set_postfix(
+                ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}"
+            )
     finally:
         env.close()
         checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far
         save_q_network(checkpoint, q_network, args)
-        save_json({"config": dataclasses.asdict(args), "seconds": time.time() - start, "env_steps": global_step,
-                   "complete": len(history) == args.episodes, "history": history}, os.path.join(run_dir, "history.json"))
+        save_json(
+            {
+                "config": dataclasses.asdict(args),
+                "seconds": time.time() - start,
+                "env_steps": global_step,
+                "complete": len(history) == args.episodes,
+                "history": history,
+            },
+            os.path.join(run_dir, "history.json"),
+        )
     return {"run_dir": run_dir, "checkpoint": checkpoint, "history": history, "transitions": buffer.size}
 
 
-SHAPED = dict(end_at_success=True, success_bonus=1.0, refusal_penalty=0.1, step_cost=0.02, shaping="log_fraction_centred",
-              shaping_scale=5.0, gamma=0.99, n_step=5, with_last_action=True, double_dqn=True, mirror_augment=True,
-              updates_per_step=2)
+SHAPED = dict(
+    end_at_success=True,
+    success_bonus=1.0,
+    refusal_penalty=0.1,
+    step_cost=0.02,
+    shaping="log_fraction_centred",
+    shaping_scale=5.0,
+    gamma=0.99,
+    n_step=5,
+    with_last_action=True,
+    double_dqn=True,
+    mirror_augment=True,
+    updates_per_step=2,
+)
 """The options of the `shaped` preset (the paper's learner with our learner's reward; see the module docstring)."""
 
 PRESETS = {
@@ -352,9 +391,13 @@ PRESETS = {
 }
 
 if __name__ == "__main__":
-    from mani_active_vision.evaluation.report import plot_curves  # the script's plot; training itself imports no plotting
+    from mani_active_vision.evaluation.report import (
+        plot_curves,
+    )  # the script's plot; training itself imports no plotting
 
     result = train(tyro.extras.overridable_config_cli(PRESETS))
     curve = os.path.join(result["run_dir"], "learning_curve.png")
-    plot_curves({os.path.basename(result["run_dir"]): [[h["return"] for h in result["history"]]]}, curve, "episode return")
+    plot_curves(
+        {os.path.basename(result["run_dir"]): [[h["return"] for h in result["history"]]]}, curve, "episode return"
+    )
     print(f"checkpoint: {result['checkpoint']}\nlearning curve: {curve}")

@@ -54,7 +54,12 @@ def _conv(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
 
 def _fuse(channels: int) -> nn.Sequential:
     """1×1 convolutions over [scene features, tiled target features]."""
-    return nn.Sequential(nn.Conv2d(2 * channels, channels, 1), nn.ReLU(inplace=True), nn.Conv2d(channels, channels, 1), nn.ReLU(inplace=True))
+    return nn.Sequential(
+        nn.Conv2d(2 * channels, channels, 1),
+        nn.ReLU(inplace=True),
+        nn.Conv2d(channels, channels, 1),
+        nn.ReLU(inplace=True),
+    )
 
 
 class OneShotFCN(nn.Module):
@@ -64,11 +69,13 @@ class OneShotFCN(nn.Module):
         super().__init__()
         self.config = config
         c1, c2, c3 = config.channels
-        self.encoder = nn.ModuleList([
-            nn.Sequential(_conv(3, c1, 2)),
-            nn.Sequential(_conv(c1, c2, 2), _conv(c2, c2)),
-            nn.Sequential(_conv(c2, c3, 2), _conv(c3, c3)),
-        ])
+        self.encoder = nn.ModuleList(
+            [
+                nn.Sequential(_conv(3, c1, 2)),
+                nn.Sequential(_conv(c1, c2, 2), _conv(c2, c2)),
+                nn.Sequential(_conv(c2, c3, 2), _conv(c3, c3)),
+            ]
+        )
         self.fuse = nn.ModuleList([_fuse(c1), _fuse(c2), _fuse(c3)])
         self.up3 = nn.ConvTranspose2d(c3, c2, 4, 2, 1)  # 1/8 -> 1/4
         self.up2 = nn.ConvTranspose2d(c2, c1, 4, 2, 1)  # 1/4 -> 1/2
@@ -111,7 +118,12 @@ class OneShotFCN(nn.Module):
         of a parameter (an optimiser step, `load_state_dict`) bumps its `_version`, which ends the cache."""
         versions = tuple(p._version for p in self.parameters())
         cached = self._cached_target
-        if cached is None or cached[0] != versions or cached[1].shape != target.shape or not torch.equal(cached[1], target):
+        if (
+            cached is None
+            or cached[0] != versions
+            or cached[1].shape != target.shape
+            or not torch.equal(cached[1], target)
+        ):
             self._cached_target = cached = (versions, target.clone(), self.target_features(target))
         return cached[2]
 
@@ -122,7 +134,9 @@ class OneShotFCN(nn.Module):
         scene = images_to_input(scene_rgb, "scene_rgb")
         target = images_to_input(target_rgb, "target_rgb")
         if len(scene) != len(target):
-            raise ValueError(f"scene_rgb has {len(scene)} images but target_rgb has {len(target)}: one target per scene")
+            raise ValueError(
+                f"scene_rgb has {len(scene)} images but target_rgb has {len(target)}: one target per scene"
+            )
         height, width = scene.shape[2:]
         if height % 8 or width % 8:
             raise ValueError(f"scene_rgb is {height}x{width}: sides must be multiples of 8")
@@ -226,16 +240,23 @@ def soft_iou_loss(scores: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 def mask_counts(pred: torch.Tensor, mask: torch.Tensor) -> dict[str, torch.Tensor]:
     """Per-sample pixel counts (N,) of predicted vs true bool masks (N, H, W): the parts of every metric."""
     if pred.shape != mask.shape or pred.dtype != torch.bool or mask.dtype != torch.bool:
-        raise ValueError(f"pred and mask must be bool tensors of one shape, got {tuple(pred.shape)} {pred.dtype} and {tuple(mask.shape)} {mask.dtype}")
+        raise ValueError(
+            f"pred and mask must be bool tensors of one shape, got {tuple(pred.shape)} {pred.dtype} and {tuple(mask.shape)} {mask.dtype}"
+        )
     return dict(
-        intersection=(pred & mask).sum((1, 2)), union=(pred | mask).sum((1, 2)),
-        correct=(pred == mask).sum((1, 2)), predicted=pred.sum((1, 2)), true=mask.sum((1, 2)),
+        intersection=(pred & mask).sum((1, 2)),
+        union=(pred | mask).sum((1, 2)),
+        correct=(pred == mask).sum((1, 2)),
+        predicted=pred.sum((1, 2)),
+        true=mask.sum((1, 2)),
         pixels=torch.full((len(mask),), mask[0].numel()),
         box_error=(mask_to_box(pred) - mask_to_box(mask)).abs().mean(1),
     )
 
 
-def dataset_counts(model: OneShotFCN, data: dict, batch_size: int = 64, largest_component: bool = False) -> dict[str, torch.Tensor]:
+def dataset_counts(
+    model: OneShotFCN, data: dict, batch_size: int = 64, largest_component: bool = False
+) -> dict[str, torch.Tensor]:
     """`mask_counts` of the model's masks over a data set (dict of `scene`, `target`, `mask` arrays)."""
     parts = []
     for i in range(0, len(data["mask"]), batch_size):
@@ -257,9 +278,13 @@ def summarize_counts(counts: dict[str, torch.Tensor]) -> dict[str, float]:
     return dict(
         pixel_accuracy=float(counts["correct"].sum() / counts["pixels"].sum()),
         target_iou=float(iou.mean()) if present.any() else nan,
-        pooled_target_iou=float(counts["intersection"][present].sum() / counts["union"][present].sum()) if present.any() else nan,
+        pooled_target_iou=float(counts["intersection"][present].sum() / counts["union"][present].sum())
+        if present.any()
+        else nan,
         false_positive_rate=float((counts["predicted"][absent] > 0).float().mean()) if absent.any() else nan,
-        fp_pixel_share=float(counts["predicted"][absent].sum() / counts["pixels"][absent].sum()) if absent.any() else nan,
+        fp_pixel_share=float(counts["predicted"][absent].sum() / counts["pixels"][absent].sum())
+        if absent.any()
+        else nan,
         box_error=float(counts["box_error"][present].mean()) if present.any() else nan,
         miss_rate=float((counts["predicted"][present] == 0).float().mean()) if present.any() else nan,
         samples_with_target=int(present.sum()),

@@ -18,7 +18,7 @@ zeros when the target is not seen. Names: see POLICIES.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -144,18 +144,29 @@ class DQNPolicy:
     network's state is the box followed by a one-hot of this policy's own previous direction (zeros at the
     start of an episode): `state(obs)`."""
 
-    def __init__(self, env, checkpoint: str | None = None, epsilon: float = 0.0, seed: int = 0, q_network=None,
-                 with_last_action: bool = False):
+    def __init__(
+        self,
+        env,
+        checkpoint: str | None = None,
+        epsilon: float = 0.0,
+        seed: int = 0,
+        q_network=None,
+        with_last_action: bool = False,
+    ):
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
         self.num_envs = env.unwrapped.num_envs
         self.q_network, self.config = (q_network, {}) if q_network is not None else load_q_network(checkpoint)
         self.with_last_action = bool(self.config.get("with_last_action", with_last_action))
         self.last_action = np.full(self.num_envs, -1)
-        state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if self.with_last_action else 0)
+        state_dim = box_array(env.observation_space.sample()).shape[-1] + (
+            len(DIRECTIONS) if self.with_last_action else 0
+        )
         if state_dim != self.q_network.state_dim:
-            raise ValueError(f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
-                             f"(with_ee_pos={self.config.get('env', {}).get('with_ee_pos')}), the env gives {state_dim}")
+            raise ValueError(
+                f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
+                f"(with_ee_pos={self.config.get('env', {}).get('with_ee_pos')}), the env gives {state_dim}"
+            )
         self.epsilon = epsilon
         self.rng = np.random.default_rng(seed)
 
@@ -180,7 +191,12 @@ class DQNPolicy:
         return action
 
 
-POLICIES: dict[str, Callable] = {"random": RandomPolicy, "servo": ServoPolicy, "explore": ExplorePolicy, "dqn": DQNPolicy}
+POLICIES: dict[str, Callable] = {
+    "random": RandomPolicy,
+    "servo": ServoPolicy,
+    "explore": ExplorePolicy,
+    "dqn": DQNPolicy,
+}
 
 
 def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0) -> dict:

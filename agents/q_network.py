@@ -22,7 +22,9 @@ class QNetwork(nn.Module):
     def __init__(self, state_dim: int, hidden_units: int = 20, num_actions: int = len(DIRECTIONS)):
         super().__init__()
         self.state_dim = state_dim
-        self.network = nn.Sequential(nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions))
+        self.network = nn.Sequential(
+            nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions)
+        )
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         return self.network(state)
@@ -38,7 +40,9 @@ def save_q_network(path: str, q_network: QNetwork, args) -> None:
 def load_q_network(path: str) -> tuple[QNetwork, dict]:
     """The Q-network of a checkpoint and the config it was trained with (loads with weights_only=True)."""
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"DQN checkpoint {path!r} does not exist (train one: python -m mani_active_vision.agents.dqn)")
+        raise FileNotFoundError(
+            f"DQN checkpoint {path!r} does not exist (train one: python -m mani_active_vision.agents.dqn)"
+        )
     checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     config = checkpoint["config"]
     if "env" not in config:

@@ -12,23 +12,20 @@ are noisy; the load average is recorded). Writes a markdown table and JSON to `-
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import gymnasium as gym
+import benchmark_env
 import numpy as np
+import pybullet_reference
 import torch
 import tyro
 from tqdm import tqdm
 
-import benchmark_env
-import pybullet_reference
 import mani_active_vision as mav
-from mani_active_vision.box_state import BOX_SOURCES, BoxState
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.vec_env import make_vec_env
@@ -95,10 +92,18 @@ def measure_gpu(num_envs: int, steps: int) -> float:
 def main(args: Args):
     torch.set_num_threads(1)
     load_before = os.getloadavg()
-    env_args = lambda resolution: benchmark_env.Args(steps=args.steps, resolution=resolution, reconfigures=args.reconfigures)
+    env_args = lambda resolution: benchmark_env.Args(
+        steps=args.steps, resolution=resolution, reconfigures=args.reconfigures
+    )
     rows = []  # (what, steps/s, reference key or None)
-    jobs = ["lifecycle", *[f"ours {r}" for r in args.resolutions], "ours state", *[f"pybullet {r}" for r in args.resolutions],
-            *[f"workers {n}" for n in args.workers], "fcn"]
+    jobs = [
+        "lifecycle",
+        *[f"ours {r}" for r in args.resolutions],
+        "ours state",
+        *[f"pybullet {r}" for r in args.resolutions],
+        *[f"workers {n}" for n in args.workers],
+        "fcn",
+    ]
     results: dict = {}
     progress = tqdm(jobs, desc="benchmark")
     for job in progress:
@@ -108,7 +113,9 @@ def main(args: Args):
             results["lifecycle"] = benchmark_env.measure_lifecycle(env_args(128))
         elif kind == "ours" and value == "state":
             results[job] = benchmark_env.measure_steps("state", env_args(128))
-            rows.append(("ours, 1 env, state (128² segmentation for the reward)", results[job]["steps_per_s"], "pybullet 128"))
+            rows.append(
+                ("ours, 1 env, state (128² segmentation for the reward)", results[job]["steps_per_s"], "pybullet 128")
+            )
         elif kind == "ours":
             results[job] = benchmark_env.measure_steps("rgb+segmentation", env_args(int(value)))
             rows.append((f"ours, 1 env, {value}² rgb+segmentation", results[job]["steps_per_s"], f"pybullet {value}"))
@@ -117,14 +124,26 @@ def main(args: Args):
             rows.append((f"PyBullet reference, {value}² rgb+segmentation", results[job]["steps_per_s"], None))
         elif kind == "workers":
             results[job] = measure_workers(int(value), args.steps)
-            rows.append((f"ours, {value} worker process(es), 128² rgb+segmentation (total)", results[job]["steps_per_s"], "pybullet 128"))
+            rows.append(
+                (
+                    f"ours, {value} worker process(es), 128² rgb+segmentation (total)",
+                    results[job]["steps_per_s"],
+                    "pybullet 128",
+                )
+            )
         elif kind == "fcn":
             results[job] = dict(steps_per_s=measure_fcn(args.steps))
             rows.append(("ours, 1 env, 128² + FCN box state", results[job]["steps_per_s"], "pybullet 128"))
     if torch.cuda.is_available():
         for n in args.gpu_envs:
             results[f"gpu {n}"] = dict(steps_per_s=measure_gpu(n, args.steps))
-            rows.append((f"ours, GPU backend, {n} envs, 128² rgb+segmentation (total)", results[f"gpu {n}"]["steps_per_s"], "pybullet 128"))
+            rows.append(
+                (
+                    f"ours, GPU backend, {n} envs, 128² rgb+segmentation (total)",
+                    results[f"gpu {n}"]["steps_per_s"],
+                    "pybullet 128",
+                )
+            )
 
     life = results["lifecycle"]
     lines = [
@@ -140,27 +159,41 @@ def main(args: Args):
         lines.append(f"| {what} | {rate:.0f} | {ratio} |")
     if all(f"workers {n}" in results for n in (1, 2)):
         scaling = results["workers 2"]["steps_per_s"] / results["workers 1"]["steps_per_s"]
-        lines.append(f"\n2 workers / 1 worker: {scaling:.2f}×; pool ready (start + reset): "
-                     + ", ".join(f"{n} worker(s) {results[f'workers {n}']['pool_ready_s']:.1f} s" for n in args.workers))
-    lines.append(f"First env ready (make + reset, shaders compiled): {life['first_ready_s']:.2f} s; "
-                 f"reset {life['reset_ms']:.1f} ms, with new objects {life['reset_reconfigure_ms']:.1f} ms.")
+        lines.append(
+            f"\n2 workers / 1 worker: {scaling:.2f}×; pool ready (start + reset): "
+            + ", ".join(f"{n} worker(s) {results[f'workers {n}']['pool_ready_s']:.1f} s" for n in args.workers)
+        )
+    lines.append(
+        f"First env ready (make + reset, shaders compiled): {life['first_ready_s']:.2f} s; "
+        f"reset {life['reset_ms']:.1f} ms, with new objects {life['reset_reconfigure_ms']:.1f} ms."
+    )
     if "memory_growth_mb" in life:
-        lines.append(f"Memory over {life['reconfigures']} reconfigures: +{life['memory_growth_mb']:.1f} MB with new objects "
-                     f"(SAPIEN caching each distinct mesh; bounded by the 800 train models), "
-                     f"+{life['memory_growth_same_models_mb']:.1f} MB with the same models (≈ "
-                     f"{life['memory_growth_same_models_mb'] / life['reconfigures'] * 1000:.1f} MB per 1,000: the leak).")
+        lines.append(
+            f"Memory over {life['reconfigures']} reconfigures: +{life['memory_growth_mb']:.1f} MB with new objects "
+            f"(SAPIEN caching each distinct mesh; bounded by the 800 train models), "
+            f"+{life['memory_growth_same_models_mb']:.1f} MB with the same models (≈ "
+            f"{life['memory_growth_same_models_mb'] / life['reconfigures'] * 1000:.1f} MB per 1,000: the leak)."
+        )
     split = results.get("ours 128", {}).get("ms")
     if split:
-        lines.append(f"One 128² step: controller {split['set_action']:.2f} ms, physics {split['step']:.2f} ms, "
-                     f"render + readback {split['_hand_camera_images']:.2f} ms, other {split['other']:.2f} ms.")
+        lines.append(
+            f"One 128² step: controller {split['set_action']:.2f} ms, physics {split['step']:.2f} ms, "
+            f"render + readback {split['_hand_camera_images']:.2f} ms, other {split['other']:.2f} ms."
+        )
     if not torch.cuda.is_available():
         lines.append("GPU backend: not measured (no CUDA device on this machine).")
     table = "\n".join(lines)
     print(table)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "benchmark.md").write_text(table + "\n")
-    record = dict(results=results, load_average_before=load_before, load_average_after=os.getloadavg(),
-                  cpu_count=os.cpu_count(), cuda=torch.cuda.is_available(), args={k: str(v) for k, v in vars(args).items()})
+    record = dict(
+        results=results,
+        load_average_before=load_before,
+        load_average_after=os.getloadavg(),
+        cpu_count=os.cpu_count(),
+        cuda=torch.cuda.is_available(),
+        args={k: str(v) for k, v in vars(args).items()},
+    )
     save_json(record, str(args.out / "benchmark.json"))
     print(f"\nwrote {args.out / 'benchmark.md'} and {args.out / 'benchmark.json'}")
 

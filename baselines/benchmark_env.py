@@ -125,16 +125,20 @@ def main(args: Args):
     print(f"reset with new objects (reconfigure): {life['reset_reconfigure_ms']:.1f} ms")
     print(f"reset without reconfigure: {life['reset_ms']:.1f} ms")
     if args.reconfigures:
-        print(f"memory: +{life['memory_growth_mb']:.1f} MB after {args.reconfigures} reconfigures with new objects "
-              f"({life['memory_growth_mb'] / args.reconfigures * 1000:.0f} kB each), "
-              f"+{life['memory_growth_same_models_mb']:.1f} MB after {args.reconfigures} with the same models")
+        print(
+            f"memory: +{life['memory_growth_mb']:.1f} MB after {args.reconfigures} reconfigures with new objects "
+            f"({life['memory_growth_mb'] / args.reconfigures * 1000:.0f} kB each), "
+            f"+{life['memory_growth_same_models_mb']:.1f} MB after {args.reconfigures} with the same models"
+        )
     print()
     print(f"| obs_mode ({args.resolution}²) | steps/s | controller ms | physics ms | render+readback ms | other ms |")
     print("|---|---|---|---|---|---|")
     for mode in ("rgb+segmentation", "state"):
         r = measure_steps(mode, args)
         m = r["ms"]
-        print(f"| {mode} | {r['steps_per_s']:.0f} | {m['set_action']:.2f} | {m['step']:.2f} | {m['_hand_camera_images']:.2f} | {m['other']:.2f} |")
+        print(
+            f"| {mode} | {r['steps_per_s']:.0f} | {m['set_action']:.2f} | {m['step']:.2f} | {m['_hand_camera_images']:.2f} | {m['other']:.2f} |"
+        )
     print("\n`state` still renders the wrist camera's segmentation: the reward is the target's share of the image.")
     print(f"load average: {os.getloadavg()}")
 

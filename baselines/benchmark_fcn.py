@@ -11,6 +11,8 @@ reference measured in the same run, the env's own step time at the same frame si
 
 from __future__ import annotations
 
+import functools
+import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -20,7 +22,7 @@ import torch
 import tyro
 
 import mani_active_vision  # noqa: F401  (registers the task)
-from mani_active_vision.agents.fcn import load_checkpoint, WEIGHTS_PATH
+from mani_active_vision.agents.fcn import WEIGHTS_PATH, load_checkpoint
 from mani_active_vision.envs import ENV_ID, EnvConfig
 
 
@@ -48,6 +50,12 @@ def time_calls(fn, repeats: int) -> np.ndarray:
     return np.array(times)
 
 
+def alternate(*calls):
+    """One call that runs each of `calls` in turn."""
+    cycle = itertools.cycle(calls)
+    return lambda: next(cycle)()
+
+
 def env_step_ms(size: int, repeats: int) -> float:
     env = gym.make(ENV_ID, **EnvConfig(start_pose="search", image_size=size).task_kwargs())
     env.reset(seed=0)
@@ -62,19 +70,28 @@ def main(args: Args):
     torch.set_num_threads(1)
     model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
     rng = np.random.default_rng(0)
-    print(f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}")
-    print("| frame | batch | ms/frame, same target (median) | (min) | ms/frame, new target (median) | (min) | env step ms (median, reference) | FCN same target / env step |")
+    print(
+        f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}"
+    )
+    print(
+        "| frame | batch | ms/frame, same target (median) | (min) | ms/frame, new target (median) | (min) | env step ms (median, reference) | FCN same target / env step |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for size in args.sizes:
         reference = env_step_ms(size, args.repeats) if args.env_reference else float("nan")
         for batch in args.batch_sizes:
             scene = rng.integers(0, 256, (batch, size, size, 3), dtype=np.uint8)
-            targets = rng.integers(0, 256, (2, batch, model.config.target_size, model.config.target_size, 3), dtype=np.uint8)
-            same = 1000 * time_calls(lambda: model.predict(scene, targets[0]), args.repeats) / batch
-            calls = iter(range(10**9))
-            new = 1000 * time_calls(lambda: model.predict(scene, targets[next(calls) % 2]), args.repeats) / batch
+            targets = rng.integers(
+                0, 256, (2, batch, model.config.target_size, model.config.target_size, 3), dtype=np.uint8
+            )
+            same_target = functools.partial(model.predict, scene, targets[0])
+            same = 1000 * time_calls(same_target, args.repeats) / batch
+            new_target = alternate(*(functools.partial(model.predict, scene, target) for target in targets))
+            new = 1000 * time_calls(new_target, args.repeats) / batch
             median = float(np.median(same))
-            print(f"| {size}² | {batch} | {median:.2f} | {same.min():.2f} | {np.median(new):.2f} | {new.min():.2f} | {reference:.2f} | {median / reference:.2f} |")
+            print(
+                f"| {size}² | {batch} | {median:.2f} | {same.min():.2f} | {np.median(new):.2f} | {new.min():.2f} | {reference:.2f} | {median / reference:.2f} |"
+            )
 
 
 if __name__ == "__main__":

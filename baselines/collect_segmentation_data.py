@@ -39,10 +39,15 @@ class Args:
 def main(args: Args):
     torch.set_num_threads(1)
     config = SegmentationDataConfig(
-        object_set=args.object_set, num_scenes=args.num_scenes, views_per_scene=args.views_per_scene,
-        image_size=args.image_size, seed=args.seed,
+        object_set=args.object_set,
+        num_scenes=args.num_scenes,
+        views_per_scene=args.views_per_scene,
+        image_size=args.image_size,
+        seed=args.seed,
     )
-    manifest = collect_segmentation_data(args.out_dir, config, scenes_per_shard=args.scenes_per_shard, workers=args.workers)
+    manifest = collect_segmentation_data(
+        args.out_dir, config, scenes_per_shard=args.scenes_per_shard, workers=args.workers
+    )
     summary = {k: manifest[k] for k in ("num_samples", "share_with_target", "target_pixel_share", "seconds")}
     print(f"{args.out_dir}: {json.dumps(summary)}")
 

@@ -57,10 +57,19 @@ def main(args: Args):
         raise ValueError(f"preset={args.preset!r} is not one of: {', '.join(dqn.PRESETS)}")
     if args.box_source not in ("fcn", "ground_truth"):
         raise ValueError(f"box_source={args.box_source!r} is not one of: fcn, ground_truth")
-    train_args = dataclasses.replace(dqn.PRESETS[args.preset][1], env=args.env, seed=args.seed, episodes=args.episodes,
-                                     explore=True, run_dir=args.out_dir, run_name="dqn")
-    print(f"training DQN ({args.episodes} episodes, {args.preset} configuration, scripted exploration, "
-          f"{args.env.box_source} box)")
+    train_args = dataclasses.replace(
+        dqn.PRESETS[args.preset][1],
+        env=args.env,
+        seed=args.seed,
+        episodes=args.episodes,
+        explore=True,
+        run_dir=args.out_dir,
+        run_name="dqn",
+    )
+    print(
+        f"training DQN ({args.episodes} episodes, {args.preset} configuration, scripted exploration, "
+        f"{args.env.box_source} box)"
+    )
     result = dqn.train(train_args)
     history = result["history"]
     curves = {key: os.path.join(args.out_dir, f"learning_curve_{key}.png") for key in ("return", "success")}
@@ -85,9 +94,13 @@ def main(args: Args):
             policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
             evaluate(env, policy, eval_seeds(args.record_episodes), with_reference=False, desc="record")
     print("outputs:")
-    outputs = [("checkpoint", result["checkpoint"]), ("training history", os.path.join(result["run_dir"], "history.json")),
-               ("learning curve (return)", curves["return"]), ("learning curve (success)", curves["success"]),
-               ("evaluation metrics", metrics)]
+    outputs = [
+        ("checkpoint", result["checkpoint"]),
+        ("training history", os.path.join(result["run_dir"], "history.json")),
+        ("learning curve (return)", curves["return"]),
+        ("learning curve (success)", curves["success"]),
+        ("evaluation metrics", metrics),
+    ]
     if args.record_episodes:
         outputs.append(("recording (Rerun)", args.recording))
     for what, path in outputs:

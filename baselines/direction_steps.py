@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import gymnasium as gym
 import numpy as np
 import torch
 import tyro
@@ -66,10 +65,16 @@ def main(args: Args):
                 rot = base.agent.ee_pose.to_transformation_matrix()[0, :3, :3].double()
                 az = torch.atan2(base.agent.ee_pose.p[0, 1], base.agent.ee_pose.p[0, 0])
                 view = camera_forward(az[None], pitch)[0].double()
-                tilts.append(max(math.degrees(math.acos(float(torch.clamp(rot[:, 2] @ view, -1, 1)))),
-                                 math.degrees(math.asin(abs(float(rot[2, 1]))))))
+                tilts.append(
+                    max(
+                        math.degrees(math.acos(float(torch.clamp(rot[:, 2] @ view, -1, 1)))),
+                        math.degrees(math.asin(abs(float(rot[2, 1])))),
+                    )
+                )
         lengths = 1000 * np.array(lengths)
-        print(f"| {name} | {lengths.mean():.2f} ± {lengths.std():.2f} | {1000 * max(off_axis):.2f} | {max(tilts):.3f} | {refused} |")
+        print(
+            f"| {name} | {lengths.mean():.2f} ± {lengths.std():.2f} | {1000 * max(off_axis):.2f} | {max(tilts):.3f} | {refused} |"
+        )
     env.close()
 
 

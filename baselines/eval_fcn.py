@@ -59,13 +59,20 @@ def plot_examples(model, datasets: dict, counts: dict, args: Args) -> None:
     strips = []
     for name, data in datasets.items():
         c = counts[name]
-        kinds = {"with the target": np.flatnonzero(c["true"] > 0), "false positives (no target in view)": np.flatnonzero((c["true"] == 0) & (c["predicted"] > 0))}
+        kinds = {
+            "with the target": np.flatnonzero(c["true"] > 0),
+            "false positives (no target in view)": np.flatnonzero((c["true"] == 0) & (c["predicted"] > 0)),
+        }
         for kind, pool in kinds.items():
             picks = np.sort(rng.choice(pool, min(args.examples, len(pool)), replace=False))
             if not len(picks):
                 continue
             overlay = data["scene"][picks].copy()
-            overlay[model.predict(data["scene"][picks], data["target"][picks], args.largest_component).numpy()] = (255, 0, 255)
+            overlay[model.predict(data["scene"][picks], data["target"][picks], args.largest_component).numpy()] = (
+                255,
+                0,
+                255,
+            )
             targets = model_sized(data["target"][picks], overlay.shape[1])
             pad = np.full((len(picks), 2, overlay.shape[2], 3), 255, np.uint8)
             columns = np.concatenate([targets, pad, overlay], 1)  # (k, 2H + 2, W, 3)
@@ -102,7 +109,9 @@ def main(args: Args):
     ]
     bins = list(zip(SIZE_BINS[:-1], SIZE_BINS[1:]))
     by_size = [
-        "", "Target IoU by the target's share of the image (samples in brackets):", "",
+        "",
+        "Target IoU by the target's share of the image (samples in brackets):",
+        "",
         "| data set | " + " | ".join(f"{lo:.1%}–{hi:.1%}" if hi <= 1 else f"≥ {lo:.0%}" for lo, hi in bins) + " |",
         "|---|" + "---|" * len(bins),
     ]
@@ -119,8 +128,13 @@ def main(args: Args):
         large = counts["true"] >= 0.01 * counts["pixels"]
         metrics["target_iou_large"] = summarize_counts({k: v[large] for k, v in counts.items()})["target_iou"]
         n = metrics["samples_with_target"] + metrics["samples_without_target"]
-        values = " | ".join(f"{metrics[c]:.4f}" if c == "pixel_accuracy" else f"{metrics[c]:.3f}" for c in COLUMNS + ("target_iou_large",))
-        lines.append(f"| {data_dir} | {config['object_set']} | {config['image_size']}² | {n} ({metrics['samples_with_target']}) | {values} |")
+        values = " | ".join(
+            f"{metrics[c]:.4f}" if c == "pixel_accuracy" else f"{metrics[c]:.3f}"
+            for c in COLUMNS + ("target_iou_large",)
+        )
+        lines.append(
+            f"| {data_dir} | {config['object_set']} | {config['image_size']}² | {n} ({metrics['samples_with_target']}) | {values} |"
+        )
         share = counts["true"].float() / counts["pixels"]
         cells = []
         for lo, hi in bins:

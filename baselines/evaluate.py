@@ -60,8 +60,16 @@ def main(args: Args) -> dict:
         env.close()
     summary = summarize(episodes)
     print(markdown_table({name: summary}))
-    save_json({"policy": name, "checkpoint": args.checkpoint, "env": dataclasses.asdict(args.env), "summary": summary,
-               "episodes": episodes}, args.json)
+    save_json(
+        {
+            "policy": name,
+            "checkpoint": args.checkpoint,
+            "env": dataclasses.asdict(args.env),
+            "summary": summary,
+            "episodes": episodes,
+        },
+        args.json,
+    )
     print(f"metrics written to {args.json}")
     return summary
 

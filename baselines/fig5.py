@@ -12,7 +12,6 @@ fixed evaluation seeds; finished runs are skipped, so an interrupted job resumes
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
@@ -77,18 +76,31 @@ def run(condition: str, seed: int, args: Args):
     if os.path.exists(eval_path):
         return
     env_options, dqn_options = CONDITIONS[condition]
-    train_args = dqn.Args(env=args.env.replace(**env_options), seed=seed, episodes=args.episodes, run_dir=run_dir,
-                          run_name=f"seed{seed}", **dqn_options)
+    train_args = dqn.Args(
+        env=args.env.replace(**env_options),
+        seed=seed,
+        episodes=args.episodes,
+        run_dir=run_dir,
+        run_name=f"seed{seed}",
+        **dqn_options,
+    )
     result = dqn.train(train_args)
     env = make_env(train_args.env)
     try:
         checkpoint = result["checkpoint"]
         policy_kwargs = dict(then="dqn", checkpoint=checkpoint) if train_args.explore else dict(checkpoint=checkpoint)
         policy = make_policy("explore" if train_args.explore else "dqn", env, **policy_kwargs)
-        episodes = evaluate(env, policy, eval_seeds(args.eval_episodes), with_reference=False, desc=f"eval {condition} {seed}")
+        episodes = evaluate(
+            env, policy, eval_seeds(args.eval_episodes), with_reference=False, desc=f"eval {condition} {seed}"
+        )
     finally:
         env.close()
     save_json({"summary": summarize(episodes), "episodes": episodes}, eval_path)
+
+
+def read_json(path: str):
+    with open(path) as f:
+        return json.load(f)
 
 
 def collect(args: Args) -> dict:
@@ -96,11 +108,15 @@ def collect(args: Args) -> dict:
     found = {}
     for condition in CONDITIONS:
         histories, evals = [], []
-        for seed_dir in sorted(os.listdir(os.path.join(args.out_dir, condition))) if os.path.isdir(os.path.join(args.out_dir, condition)) else []:
+        for seed_dir in (
+            sorted(os.listdir(os.path.join(args.out_dir, condition)))
+            if os.path.isdir(os.path.join(args.out_dir, condition))
+            else []
+        ):
             path = os.path.join(args.out_dir, condition, seed_dir)
             if os.path.exists(os.path.join(path, "eval.json")):
-                histories.append(json.load(open(os.path.join(path, "history.json")))["history"])
-                evals.append(json.load(open(os.path.join(path, "eval.json")))["summary"])
+                histories.append(read_json(os.path.join(path, "history.json"))["history"])
+                evals.append(read_json(os.path.join(path, "eval.json"))["summary"])
         if histories:
             found[condition] = {"histories": histories, "evals": evals}
     return found
@@ -113,16 +129,25 @@ def report(args: Args):
         for key, label in (("return", "episode return"), ("success", "success rate")):
             if present:
                 path = os.path.join(args.out_dir, f"fig5{figure}_{key}.png")
-                plot_curves({c: [[h[key] for h in hist] for hist in found[c]["histories"]] for c in present}, path, label, title=f"Fig. 5 {figure}")
+                plot_curves(
+                    {c: [[h[key] for h in hist] for hist in found[c]["histories"]] for c in present},
+                    path,
+                    label,
+                    title=f"Fig. 5 {figure}",
+                )
                 print(f"wrote {path}")
-    lines = ["| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval steps to success | eval final target fraction |",
-             "|" + "---|" * 8]
+    lines = [
+        "| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval steps to success | eval final target fraction |",
+        "|" + "---|" * 8,
+    ]
     for condition, data in found.items():
         last = [np.mean([h["success"] for h in hist[-10:]]) for hist in data["histories"]]
         last_return = [np.mean([h["return"] for h in hist[-10:]]) for hist in data["histories"]]
         ev = data["evals"]
-        lines.append(f"| {condition} | {len(ev)} | {spread(last)} | {spread(last_return)} | {spread([e['success'] for e in ev])} | "
-                     f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_target_fraction'] for e in ev], 3)} |")
+        lines.append(
+            f"| {condition} | {len(ev)} | {spread(last)} | {spread(last_return)} | {spread([e['success'] for e in ev])} | "
+            f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_target_fraction'] for e in ev], 3)} |"
+        )
     table = "\n".join(lines)
     with open(os.path.join(args.out_dir, "fig5_table.md"), "w") as f:
         f.write(table + "\n\n(mean ± std over seeds; eval: greedy policy, episodes from seed 1,000,000)\n")

@@ -57,13 +57,19 @@ def main(args: Args):
     rng = np.random.default_rng(args.seed)
     pushes = rng.integers(0, len(DIRECTIONS), size=(args.episodes, len(args.push_steps)))
     results = {}
-    rows = ["| policy | push | focused | recovered (of focused) | steps to recover | target still in view after push |",
-            "|---|---|---|---|---|---|"]
+    rows = [
+        "| policy | push | focused | recovered (of focused) | steps to recover | target still in view after push |",
+        "|---|---|---|---|---|---|",
+    ]
     try:
         for name, policy in policies.items():
             for j, steps in enumerate(args.push_steps):
-                trials = [perturbation_trial(env, policy, args.seed + i, int(pushes[i, j]), steps, FOCUS_LIMIT, args.recover_limit)
-                          for i in tqdm(range(args.episodes), desc=f"{name} push {steps}", leave=False)]
+                trials = [
+                    perturbation_trial(
+                        env, policy, args.seed + i, int(pushes[i, j]), steps, FOCUS_LIMIT, args.recover_limit
+                    )
+                    for i in tqdm(range(args.episodes), desc=f"{name} push {steps}", leave=False)
+                ]
                 focused = [t for t in trials if t["focused"]]
                 recovered = [t for t in focused if t["recovered"]]
                 rate = len(recovered) / len(focused) if focused else float("nan")
@@ -71,14 +77,22 @@ def main(args: Args):
                 steps_mean = np.mean(steps_to_recover) if recovered else float("nan")
                 steps_std = np.std(steps_to_recover) if recovered else float("nan")
                 visible = np.mean([t["visible_after_push"] for t in focused]) if focused else float("nan")
-                results[f"{name}/push{steps}"] = {"trials": trials, "pushes": [DIRECTIONS[int(d)] for d in pushes[:, j]],
-                                                  "recovery_rate": rate, "steps_to_recover": steps_mean}
-                rows.append(f"| {name} | {steps} × {config.step_size * 100:.0f} cm | {len(focused)}/{len(trials)} | {rate:.2f} | "
-                            f"{steps_mean:.1f} ± {steps_std:.1f} | {visible:.2f} |")
+                results[f"{name}/push{steps}"] = {
+                    "trials": trials,
+                    "pushes": [DIRECTIONS[int(d)] for d in pushes[:, j]],
+                    "recovery_rate": rate,
+                    "steps_to_recover": steps_mean,
+                }
+                rows.append(
+                    f"| {name} | {steps} × {config.step_size * 100:.0f} cm | {len(focused)}/{len(trials)} | {rate:.2f} | "
+                    f"{steps_mean:.1f} ± {steps_std:.1f} | {visible:.2f} |"
+                )
     finally:
         env.close()
     print("\n".join(rows))
-    save_json({"env": dataclasses.asdict(config), "checkpoint": args.checkpoint, "table": rows, "results": results}, args.json)
+    save_json(
+        {"env": dataclasses.asdict(config), "checkpoint": args.checkpoint, "table": rows, "results": results}, args.json
+    )
     print(f"results written to {args.json}")
 
 

@@ -81,8 +81,10 @@ class PyBulletReference:
             self.rng = np.random.default_rng(seed)
         for body in self.objects:
             self.client.removeBody(body)
-        self.objects = [self._load_object(model, placed) for model, placed in
-                        zip(self.rng.choice(TRAIN_MODELS, self.num_objects, replace=False), self._layout())]
+        self.objects = [
+            self._load_object(model, placed)
+            for model, placed in zip(self.rng.choice(TRAIN_MODELS, self.num_objects, replace=False), self._layout())
+        ]
         self.target_pos = np.array(START_POS)
         for joint, q in zip(self.joints, self._ik(self.target_pos, iterations=50)):
             self.client.resetJointState(self.robot, joint, q)
@@ -132,14 +134,25 @@ class PyBulletReference:
             turn = self.step_size / radius * (1 if direction == "left" else -1)
             return np.array([radius * math.cos(azimuth + turn) - x, radius * math.sin(azimuth + turn) - y, 0.0])
         forward = np.array([math.cos(PITCH) * math.cos(azimuth), math.cos(PITCH) * math.sin(azimuth), -math.sin(PITCH)])
-        return self.step_size * dict(forward=forward, backward=-forward, up=np.array([0, 0, 1.0]), down=np.array([0, 0, -1.0]))[direction]
+        return (
+            self.step_size
+            * dict(forward=forward, backward=-forward, up=np.array([0, 0, 1.0]), down=np.array([0, 0, -1.0]))[direction]
+        )
 
     def _ik(self, pos: np.ndarray, iterations: int = 20) -> list[float]:
-        return self.client.calculateInverseKinematics(self.robot, EE_LINK, pos, orbit_orientation(pos), maxNumIterations=iterations)
+        return self.client.calculateInverseKinematics(
+            self.robot, EE_LINK, pos, orbit_orientation(pos), maxNumIterations=iterations
+        )
 
     def _drive(self, pos: np.ndarray):
-        self.client.setJointMotorControlArray(self.robot, self.joints, pybullet.POSITION_CONTROL, targetPositions=self._ik(pos),
-                                              forces=[1000.0] * len(self.joints), positionGains=[0.5] * len(self.joints))
+        self.client.setJointMotorControlArray(
+            self.robot,
+            self.joints,
+            pybullet.POSITION_CONTROL,
+            targetPositions=self._ik(pos),
+            forces=[1000.0] * len(self.joints),
+            positionGains=[0.5] * len(self.joints),
+        )
 
     def _observe(self) -> dict:
         link = self.client.getLinkState(self.robot, EE_LINK, computeForwardKinematics=True)
@@ -147,7 +160,8 @@ class PyBulletReference:
         eye = np.array(link[4]) + CAMERA_OFFSET * rotation[:, 2]
         view = self.client.computeViewMatrix(eye, eye + rotation[:, 2], -rotation[:, 0])
         _, _, rgba, _, segmentation = self.client.getCameraImage(
-            self.resolution, self.resolution, view, self.projection, renderer=pybullet.ER_TINY_RENDERER)
+            self.resolution, self.resolution, view, self.projection, renderer=pybullet.ER_TINY_RENDERER
+        )
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(self.resolution, self.resolution, 4)
         segmentation = np.asarray(segmentation, dtype=np.int32).reshape(self.resolution, self.resolution)
         return dict(rgb=rgba[..., :3], segmentation=segmentation)
@@ -179,4 +193,6 @@ class Args:
 
 if __name__ == "__main__":
     args = tyro.cli(Args)
-    print(f"PyBullet reference, {args.resolution}² rgb+segmentation: {steps_per_second(args.resolution, args.steps, seed=args.seed):.0f} steps/s")
+    print(
+        f"PyBullet reference, {args.resolution}² rgb+segmentation: {steps_per_second(args.resolution, args.steps, seed=args.seed):.0f} steps/s"
+    )

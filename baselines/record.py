@@ -50,19 +50,29 @@ def main(args: Args):
     if args.policy not in POLICIES:  # before any file is written
         raise ValueError(f"policy={args.policy!r} is not one of: {', '.join(POLICIES)}")
     kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed)
-    with RerunRecorder(make_env(args.env), args.out, image_format=args.image_format, jpeg_quality=args.jpeg_quality) as env:
+    with RerunRecorder(
+        make_env(args.env), args.out, image_format=args.image_format, jpeg_quality=args.jpeg_quality
+    ) as env:
         policy = make_policy(args.policy, env, **kwargs)
-        episodes = evaluate(env, policy, range(args.seed, args.seed + args.episodes), with_reference=False, desc="record")
+        episodes = evaluate(
+            env, policy, range(args.seed, args.seed + args.episodes), with_reference=False, desc="record"
+        )
     for e in episodes:
-        print(f"episode seed {e['seed']}: return {e['return']:.3f}, success {bool(e['success'])}, "
-              f"success at the end {bool(e['success_final'])}")
+        print(
+            f"episode seed {e['seed']}: return {e['return']:.3f}, success {bool(e['success'])}, "
+            f"success at the end {bool(e['success_final'])}"
+        )
     cost = env.overhead()
     size = os.path.getsize(args.out)
-    print(f"logging {cost['log_ms_per_step']:.1f} ms/step = {100 * cost['log_share_of_env_step']:.0f}% of an env step "
-          f"({cost['env_ms_per_step']:.1f} ms), resets {cost['reset_log_seconds']:.2f} s in all; file {size / 1e6:.2f} MB = "
-          f"{size / 1e6 / max(cost['steps'], 1) * 100:.2f} MB per 100 steps")
-    print(f"wrote {args.out}\nopen it:        {os.path.join('.venv', 'bin', 'rerun')} {args.out}"
-          f"\nscreenshots:    python baselines/screenshots.py {args.out} --steps 20 60")
+    print(
+        f"logging {cost['log_ms_per_step']:.1f} ms/step = {100 * cost['log_share_of_env_step']:.0f}% of an env step "
+        f"({cost['env_ms_per_step']:.1f} ms), resets {cost['reset_log_seconds']:.2f} s in all; file {size / 1e6:.2f} MB = "
+        f"{size / 1e6 / max(cost['steps'], 1) * 100:.2f} MB per 100 steps"
+    )
+    print(
+        f"wrote {args.out}\nopen it:        {os.path.join('.venv', 'bin', 'rerun')} {args.out}"
+        f"\nscreenshots:    python baselines/screenshots.py {args.out} --steps 20 60"
+    )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Render a Rerun recording at chosen steps to PNGs, without a screen (headless native viewer).
 
-    python baselines/screenshots.py recordings/random.rrd --steps 20 60 --out-dir outputs/screenshots
+python baselines/screenshots.py recordings/random.rrd --steps 20 60 --out-dir outputs/screenshots
 """
 
 from __future__ import annotations

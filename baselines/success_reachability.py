@@ -59,7 +59,9 @@ def candidate_positions(target_xy: np.ndarray, step: float, pitch: float, config
 
 def main(args: Args):
     torch.set_num_threads(1)
-    config = EnvConfig(start_pose="search", object_set=args.object_set, placement=args.placement, image_size=args.resolution)
+    config = EnvConfig(
+        start_pose="search", object_set=args.object_set, placement=args.placement, image_size=args.resolution
+    )
     env = gym.make(ENV_ID, **config.task_kwargs())
     base = env.unwrapped
     controller = base.agent.controller
@@ -67,7 +69,10 @@ def main(args: Args):
     for seed in tqdm(range(args.placements), desc="placements"):
         env.reset(seed=seed)
         target_xy = base.target.pose.p[0, :2].numpy()
-        points = torch.as_tensor(candidate_positions(target_xy, base.step_size, controller.config.pitch, controller.config), dtype=torch.float32)
+        points = torch.as_tensor(
+            candidate_positions(target_xy, base.step_size, controller.config.pitch, controller.config),
+            dtype=torch.float32,
+        )
         qpos, ok = solve_ik(points, controller.config.pitch)
         ok &= qpos[:, 3] <= controller.config.max_elbow
         best = np.zeros_like(reachable, dtype=bool)
@@ -83,7 +88,9 @@ def main(args: Args):
         reachable += best
     env.close()
     share = reachable / args.placements
-    print(f"\nShare of {args.placements} {args.placement} placements ({args.object_set} objects, {args.resolution}²) where some view")
+    print(
+        f"\nShare of {args.placements} {args.placement} placements ({args.object_set} objects, {args.resolution}²) where some view"
+    )
     print("is fully in view with target share >= fraction and centroid within tolerance·W of the centre:\n")
     print("| fraction \\ tolerance | " + " | ".join(f"{t:.2f}" for t in args.tolerances) + " |")
     print("|---|" + "---|" * len(args.tolerances))

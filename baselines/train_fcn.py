@@ -16,7 +16,6 @@ continues from it); curves to RUN_DIR/curves.png.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -33,11 +32,19 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import (
-    FCNConfig, OneShotFCN, class_weights, dataset_counts, flip_horizontally, images_to_input, load_checkpoint, save_checkpoint,
-    soft_iou_loss, summarize_counts,
+    FCNConfig,
+    OneShotFCN,
+    class_weights,
+    dataset_counts,
+    flip_horizontally,
+    images_to_input,
+    load_checkpoint,
+    save_checkpoint,
+    soft_iou_loss,
+    summarize_counts,
 )
-from mani_active_vision.segmentation_data import load_segmentation_data
 from mani_active_vision.json_io import save_json
+from mani_active_vision.segmentation_data import load_segmentation_data
 
 
 @dataclass
@@ -102,11 +109,19 @@ def main(args: Args):
     image_size = train["scene"].shape[1]
     target_share = float(train["mask"].mean())
     weights = class_weights(target_share, args.weight_power)
-    print(f"train {len(train['mask'])} samples, val {len(val['mask'])}; {image_size}² scenes; target pixels {target_share:.4f} "
-          f"-> class weights {weights.tolist()}")
+    print(
+        f"train {len(train['mask'])} samples, val {len(val['mask'])}; {image_size}² scenes; target pixels {target_share:.4f} "
+        f"-> class weights {weights.tolist()}"
+    )
 
-    model = OneShotFCN(FCNConfig(channels=args.channels, image_size=image_size, target_size=train["target"].shape[1],
-                                 full_res_channels=args.full_res_channels))
+    model = OneShotFCN(
+        FCNConfig(
+            channels=args.channels,
+            image_size=image_size,
+            target_size=train["target"].shape[1],
+            full_res_channels=args.full_res_channels,
+        )
+    )
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     history, start_epoch, best_iou = [], 0, -1.0
     last_path, best_path = os.path.join(args.run_dir, "last.pt"), os.path.join(args.run_dir, "best.pt")
@@ -135,9 +150,15 @@ def main(args: Args):
         losses, started = [], time.time()
         for step in tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{args.epochs}", leave=False):
             idx = np.sort(order[step * args.batch_size : (step + 1) * args.batch_size])
-            scene, target, mask = images_to_input(train["scene"][idx]), images_to_input(train["target"][idx]), torch.from_numpy(train["mask"][idx])
+            scene, target, mask = (
+                images_to_input(train["scene"][idx]),
+                images_to_input(train["target"][idx]),
+                torch.from_numpy(train["mask"][idx]),
+            )
             if args.flip:
-                scene, target, mask = flip_horizontally(scene, target, mask, where=torch.from_numpy(rng.random(len(idx)) < 0.5))
+                scene, target, mask = flip_horizontally(
+                    scene, target, mask, where=torch.from_numpy(rng.random(len(idx)) < 0.5)
+                )
             loss = loss_fn(model(scene, target), mask)
             optimizer.zero_grad()
             loss.backward()
@@ -148,22 +169,38 @@ def main(args: Args):
         model.eval()
         with torch.inference_mode():
             val_losses = [
-                loss_fn(model(images_to_input(val["scene"][i : i + 128]), images_to_input(val["target"][i : i + 128])),
-                        torch.from_numpy(val["mask"][i : i + 128])).item()
+                loss_fn(
+                    model(images_to_input(val["scene"][i : i + 128]), images_to_input(val["target"][i : i + 128])),
+                    torch.from_numpy(val["mask"][i : i + 128]),
+                ).item()
                 for i in range(0, len(val["mask"]), 128)
             ]
         metrics = summarize_counts(dataset_counts(model, val))
-        history.append(dict(epoch=epoch + 1, lr=lr, train_loss=float(np.mean(losses)), val_loss=float(np.mean(val_losses)),
-                            val=metrics, train_seconds=round(train_seconds, 1)))
-        print(f"epoch {epoch + 1:2d} lr {lr:.2e} train loss {np.mean(losses):.4f} val loss {np.mean(val_losses):.4f} "
-              f"val IoU {metrics['target_iou']:.3f} (pooled {metrics['pooled_target_iou']:.3f}) "
-              f"pixel acc {metrics['pixel_accuracy']:.4f} FP rate {metrics['false_positive_rate']:.3f} ({train_seconds:.0f} s)")
+        history.append(
+            dict(
+                epoch=epoch + 1,
+                lr=lr,
+                train_loss=float(np.mean(losses)),
+                val_loss=float(np.mean(val_losses)),
+                val=metrics,
+                train_seconds=round(train_seconds, 1),
+            )
+        )
+        print(
+            f"epoch {epoch + 1:2d} lr {lr:.2e} train loss {np.mean(losses):.4f} val loss {np.mean(val_losses):.4f} "
+            f"val IoU {metrics['target_iou']:.3f} (pooled {metrics['pooled_target_iou']:.3f}) "
+            f"pixel acc {metrics['pixel_accuracy']:.4f} FP rate {metrics['false_positive_rate']:.3f} ({train_seconds:.0f} s)"
+        )
         save_checkpoint(last_path, model, optimizer=optimizer.state_dict(), history=history, args=asdict(args))
         if metrics["target_iou"] > best_iou:
             best_iou = metrics["target_iou"]
-            save_checkpoint(best_path, model, epoch=epoch + 1, val=metrics, args=asdict(args), class_weights=weights.tolist())
+            save_checkpoint(
+                best_path, model, epoch=epoch + 1, val=metrics, args=asdict(args), class_weights=weights.tolist()
+            )
         save_json(history, os.path.join(args.run_dir, "history.json"))
-        loss_name = "weighted cross-entropy" + (f" + {args.iou_loss_weight:g} × soft IoU" if args.iou_loss_weight else "")
+        loss_name = "weighted cross-entropy" + (
+            f" + {args.iou_loss_weight:g} × soft IoU" if args.iou_loss_weight else ""
+        )
         plot_curves(history, os.path.join(args.run_dir, "curves.png"), loss_name)
     print(f"best val target IoU {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")
 

@@ -34,9 +34,13 @@ class BoxState(gym.ObservationWrapper):
             raise ValueError(f"source={source!r} is not one of: {', '.join(BOX_SOURCES)}")
         needed = "segmentation" if source == "ground_truth" else "rgb"
         if needed not in env.unwrapped.obs_mode:
-            raise ValueError(f"BoxState(source={source!r}) needs an obs_mode with {needed}, got {env.unwrapped.obs_mode!r}")
+            raise ValueError(
+                f"BoxState(source={source!r}) needs an obs_mode with {needed}, got {env.unwrapped.obs_mode!r}"
+            )
         if source == "fcn" and segmenter is None:
-            raise ValueError("BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())")
+            raise ValueError(
+                "BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())"
+            )
         self.segmenter = segmenter
         self.last_mask: torch.Tensor | None = None
         self.last_observation: dict | None = None
@@ -53,7 +57,11 @@ class BoxState(gym.ObservationWrapper):
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
         self.last_observation = obs
         if self.source == "fcn":
-            mask = self.segmenter.predict(batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"]), largest_component=True)
+            mask = self.segmenter.predict(
+                batch(obs["sensor_data"]["hand_camera"]["rgb"]),
+                batch(obs["extra"]["target_image"]),
+                largest_component=True,
+            )
         else:
             seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])
             mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]

@@ -14,7 +14,7 @@ costs nothing; a scene with an environment map would use it.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +58,7 @@ def compute_brdf_lut(size: int = SIZE, samples: int = SAMPLES) -> np.ndarray:
     return table
 
 
-@lru_cache(maxsize=None)
+@cache
 def brdf_lut_array() -> np.ndarray:
     """The shipped table (computed if the file is missing)."""
     try:
@@ -67,7 +67,7 @@ def brdf_lut_array() -> np.ndarray:
         return compute_brdf_lut()
 
 
-@lru_cache(maxsize=None)
+@cache
 def _brdf_lut_texture():
     import sapien
 

@@ -51,7 +51,9 @@ class DiscreteDirections(gym.ActionWrapper):
         radius = torch.linalg.norm(pos[:, :2], dim=-1).clamp(min=1e-6)
         azimuth = torch.atan2(pos[:, 1], pos[:, 0])
         turn = torch.where(idx == LEFT, step / radius, -step / radius)  # left = counter-clockwise seen from above
-        orbit = torch.stack([radius * torch.cos(azimuth + turn), radius * torch.sin(azimuth + turn), pos[:, 2]], -1) - pos
+        orbit = (
+            torch.stack([radius * torch.cos(azimuth + turn), radius * torch.sin(azimuth + turn), pos[:, 2]], -1) - pos
+        )
         forward = step * camera_forward(azimuth, controller.config.pitch)
         up = torch.zeros_like(pos)
         up[:, 2] = step

@@ -11,7 +11,7 @@ import math
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pybullet_data
@@ -22,8 +22,14 @@ OBJECT_SETS = ("train", "unseen", "primitives")
 OBJECT_SIZE = (0.07, 0.10)
 """Range of an object's largest extent (m)."""
 PALETTE = (
-    (0.85, 0.15, 0.15), (0.15, 0.65, 0.20), (0.15, 0.30, 0.85), (0.90, 0.80, 0.15),
-    (0.85, 0.45, 0.10), (0.60, 0.20, 0.75), (0.10, 0.70, 0.75), (0.95, 0.95, 0.95),
+    (0.85, 0.15, 0.15),
+    (0.15, 0.65, 0.20),
+    (0.15, 0.30, 0.85),
+    (0.90, 0.80, 0.15),
+    (0.85, 0.45, 0.10),
+    (0.60, 0.20, 0.75),
+    (0.10, 0.70, 0.75),
+    (0.95, 0.95, 0.95),
 )
 PRIMITIVE_SHAPES = ("box", "cylinder", "sphere")
 NAMED_MODELS = ("duck_vhacd.urdf", "teddy_vhacd.urdf", "objects/mug.urdf", "lego/lego.urdf")
@@ -51,7 +57,7 @@ def _model_from_urdf(urdf_path: str) -> ObjectModel:
     return ObjectModel(name=name, shape="mesh", color=tuple(rgba[:3]), mesh_path=path, mesh_scale=scale)
 
 
-@lru_cache(maxsize=None)
+@cache
 def object_set(name: str) -> tuple[ObjectModel, ...]:
     """The models of object set `name` (one of OBJECT_SETS), in a fixed order."""
     if name not in OBJECT_SETS:
@@ -70,7 +76,7 @@ def object_set(name: str) -> tuple[ObjectModel, ...]:
     return tuple(models)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _mesh_bounds(path: str) -> np.ndarray:
     mesh = trimesh.load(path, force="mesh", process=False)
     return np.asarray(mesh.bounds, dtype=np.float64)

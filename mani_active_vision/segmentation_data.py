@@ -59,17 +59,22 @@ class SegmentationDataConfig:
         if self.image_size % 8:
             raise ValueError(f"image_size={self.image_size} must be a multiple of 8 (the FCN downsamples 8x)")
         if len(self.view_mode_probs) != len(VIEW_MODES) or abs(sum(self.view_mode_probs) - 1) > 1e-6:
-            raise ValueError(f"view_mode_probs={self.view_mode_probs} must be {len(VIEW_MODES)} probabilities summing to 1")
+            raise ValueError(
+                f"view_mode_probs={self.view_mode_probs} must be {len(VIEW_MODES)} probabilities summing to 1"
+            )
 
 
 def make_data_env(config: SegmentationDataConfig) -> gym.Env:
     """The env a data set is rendered from (rgb + segmentation at `image_size`², CPU renderer)."""
-    env_config = EnvConfig(start_pose="search", num_objects=config.num_objects, object_set=config.object_set,
-                           image_size=config.image_size)
+    env_config = EnvConfig(
+        start_pose="search", num_objects=config.num_objects, object_set=config.object_set, image_size=config.image_size
+    )
     return gym.make(ENV_ID, **env_config.task_kwargs())
 
 
-def sample_camera_position(rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig) -> tuple[np.ndarray, str, np.ndarray]:
+def sample_camera_position(
+    rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig
+) -> tuple[np.ndarray, str, np.ndarray]:
     """A reachable camera (link 7) position (3,), its view mode and its joint positions (7,).
 
     `object_xy` (K, 2): the objects' floor positions, row 0 the target.
@@ -89,7 +94,8 @@ def sample_camera_position(rng: np.random.Generator, object_xy: np.ndarray, conf
         pos = np.array([radius * math.cos(azimuth), radius * math.sin(azimuth), z])
         qpos, ok = solve_ik(torch.tensor(pos[None], dtype=torch.float32), CAMERA_PITCH)
         reachable = (
-            bool(ok[0]) and controller.min_radius <= radius <= controller.max_radius
+            bool(ok[0])
+            and controller.min_radius <= radius <= controller.max_radius
             and float(qpos[0, 3]) <= controller.max_elbow
         )
         if reachable:
@@ -97,7 +103,9 @@ def sample_camera_position(rng: np.random.Generator, object_xy: np.ndarray, conf
     raise RuntimeError(f"no reachable camera pose found for mode {mode!r} near objects {object_xy.tolist()}")
 
 
-def render_scene_views(env: gym.Env, scene_seed: int, rng: np.random.Generator, config: SegmentationDataConfig) -> dict[str, np.ndarray]:
+def render_scene_views(
+    env: gym.Env, scene_seed: int, rng: np.random.Generator, config: SegmentationDataConfig
+) -> dict[str, np.ndarray]:
     """Reset `env` with `scene_seed` and render `views_per_scene` samples from poses drawn with `rng`.
 
     The arm is left where the last view put it, off the controller's target: reset `env` before stepping it."""
@@ -117,12 +125,17 @@ def render_scene_views(env: gym.Env, scene_seed: int, rng: np.random.Generator, 
         modes.append(VIEW_MODES.index(mode))
     n = config.views_per_scene
     return dict(
-        scene=np.stack(scenes), target=np.repeat(target_image[None], n, 0), mask=np.stack(masks),
-        scene_seed=np.full(n, scene_seed, dtype=np.int64), view_mode=np.array(modes, dtype=np.int8),
+        scene=np.stack(scenes),
+        target=np.repeat(target_image[None], n, 0),
+        mask=np.stack(masks),
+        scene_seed=np.full(n, scene_seed, dtype=np.int64),
+        view_mode=np.array(modes, dtype=np.int8),
     )
 
 
-def render_shard(env: gym.Env, out_dir: str, config: SegmentationDataConfig, index: int, scenes_per_shard: int, on_scene=None) -> dict:
+def render_shard(
+    env: gym.Env, out_dir: str, config: SegmentationDataConfig, index: int, scenes_per_shard: int, on_scene=None
+) -> dict:
     """Render shard `index` (scenes `index * scenes_per_shard` ...) into `out_dir`; returns its manifest entry.
 
     A shard depends only on (config, index): shards made by different processes are the same as made by one."""
@@ -135,8 +148,13 @@ def render_shard(env: gym.Env, out_dir: str, config: SegmentationDataConfig, ind
     shard = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     name = f"shard_{index:05d}.npz"
     np.savez_compressed(os.path.join(out_dir, name), **shard)
-    return dict(file=name, num_samples=len(shard["mask"]), num_scenes=len(parts),
-                with_target=int(shard["mask"].any((1, 2)).sum()), target_pixels=int(shard["mask"].sum()))
+    return dict(
+        file=name,
+        num_samples=len(shard["mask"]),
+        num_scenes=len(parts),
+        with_target=int(shard["mask"].any((1, 2)).sum()),
+        target_pixels=int(shard["mask"].sum()),
+    )
 
 
 _worker_env = None
@@ -152,7 +170,9 @@ def _render_shard_in_worker(job: tuple) -> dict:
     return render_shard(_worker_env, *job)
 
 
-def collect_segmentation_data(out_dir: str, config: SegmentationDataConfig, scenes_per_shard: int = 50, workers: int = 1, progress: bool = True) -> dict:
+def collect_segmentation_data(
+    out_dir: str, config: SegmentationDataConfig, scenes_per_shard: int = 50, workers: int = 1, progress: bool = True
+) -> dict:
     """Render a data set into `out_dir` (shards + manifest.json) with `workers` processes; returns the manifest.
 
     The data do not depend on `workers` (each shard is rendered from its own scene seeds)."""
@@ -165,7 +185,10 @@ def collect_segmentation_data(out_dir: str, config: SegmentationDataConfig, scen
         if workers == 1:
             env = make_data_env(config)
             try:
-                shards = [render_shard(env, out_dir, config, i, scenes_per_shard, on_scene=lambda: bar.update(1)) for i in range(num_shards)]
+                shards = [
+                    render_shard(env, out_dir, config, i, scenes_per_shard, on_scene=lambda: bar.update(1))
+                    for i in range(num_shards)
+                ]
             finally:
                 env.close()
         else:
@@ -177,11 +200,13 @@ def collect_segmentation_data(out_dir: str, config: SegmentationDataConfig, scen
                     bar.update(shard["num_scenes"])
     num_samples = sum(s["num_samples"] for s in shards)
     manifest = dict(
-        config=asdict(config), shards=[dict(file=s["file"], num_samples=s["num_samples"]) for s in shards],
+        config=asdict(config),
+        shards=[dict(file=s["file"], num_samples=s["num_samples"]) for s in shards],
         num_samples=num_samples,
         share_with_target=sum(s["with_target"] for s in shards) / max(num_samples, 1),
         target_pixel_share=sum(s["target_pixels"] for s in shards) / max(num_samples * config.image_size**2, 1),
-        seconds=round(time.time() - start, 1), workers=workers,
+        seconds=round(time.time() - start, 1),
+        workers=workers,
     )
     with open(os.path.join(out_dir, "manifest.json"), "w") as f:
         json.dump(manifest, f, indent=2)
@@ -192,7 +217,9 @@ def load_segmentation_data(data_dir: str) -> dict[str, np.ndarray]:
     """All shards of a data set written by `collect_segmentation_data`, concatenated."""
     path = os.path.join(data_dir, "manifest.json")
     if not os.path.exists(path):
-        raise FileNotFoundError(f"no manifest.json in {data_dir!r}: make the data set with baselines/collect_segmentation_data.py")
+        raise FileNotFoundError(
+            f"no manifest.json in {data_dir!r}: make the data set with baselines/collect_segmentation_data.py"
+        )
     with open(path) as f:
         manifest = json.load(f)
     parts = [dict(np.load(os.path.join(data_dir, shard["file"]))) for shard in manifest["shards"]]

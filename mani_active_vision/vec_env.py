@@ -50,10 +50,12 @@ def make_vec_env(
     **env_kwargs,
 ) -> gym.vector.VectorEnv:
     """`num_envs` copies of `env_id` (made with `env_kwargs`), or of the project's env for an `EnvConfig`
-(then `wrappers` go around its box state), as one vector env; see the module docstring."""
+    (then `wrappers` go around its box state), as one vector env; see the module docstring."""
     if isinstance(env_id, EnvConfig):
         if env_kwargs:
-            raise ValueError(f"with an EnvConfig, options go in the config, not in env_kwargs: got {sorted(env_kwargs)}")
+            raise ValueError(
+                f"with an EnvConfig, options go in the config, not in env_kwargs: got {sorted(env_kwargs)}"
+            )
         config, env_id = env_id, ENV_ID
         env_kwargs = {k: v for k, v in config.task_kwargs().items() if k != "render_backend"}
         wrappers = (functools.partial(wrap_env, config=config), *wrappers)
@@ -80,8 +82,9 @@ def _make_worker_env(env_id: str, wrappers: Sequence[Callable], env_kwargs: dict
     the spaces from a throwaway env: the parent's torch threads are left alone."""
     if multiprocessing.parent_process() is not None:
         torch.set_num_threads(1)
-    import mani_active_vision  # noqa: F401  (registers the task in a fresh worker process)
     from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
+
+    import mani_active_vision  # noqa: F401  (registers the task in a fresh worker process)
 
     env = CPUGymWrapper(gym.make(env_id, num_envs=1, **env_kwargs))
     for wrap in wrappers:
@@ -108,7 +111,9 @@ class CPUVectorEnv(AsyncVectorEnv):
         for index, (pipe, process) in enumerate(zip(self.parent_pipes, self.processes)):
             if pipe is not None and not process.is_alive():
                 self._state = type(self._state).DEFAULT
-                return WorkerCrashedError(f"vector env worker {index} (pid {process.pid}) died: {_exit_reason(process.exitcode)}")
+                return WorkerCrashedError(
+                    f"vector env worker {index} (pid {process.pid}) died: {_exit_reason(process.exitcode)}"
+                )
         return None
 
     def _guarded(self, call, *args, **kwargs):

@@ -36,7 +36,6 @@ import gymnasium as gym
 import numpy as np
 import sapien
 import torch
-
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
@@ -46,7 +45,7 @@ from mani_skill.utils.structs import Actor, Pose
 
 from mani_active_vision.boxes import target_stats
 from mani_active_vision.brdf_lut import supply_brdf_lut
-from mani_active_vision.objects import OBJECT_SIZE, PALETTE, OBJECT_SETS, build_object, object_set
+from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, object_set
 from mani_active_vision.robots.iiwa import IiwaWristCam
 
 PLACEMENTS = ("random", "fixed")
@@ -71,7 +70,16 @@ class ActiveVisionFindEnv(BaseEnv):
     placement_radius = (0.70, 0.90)
     placement_azimuth = math.radians(155)
     min_object_distance = 0.15
-    fixed_layout = ((0.80, 30.0), (0.75, -40.0), (0.85, 90.0), (0.80, -110.0), (0.75, 150.0), (0.85, -150.0), (0.72, -5.0), (0.88, 60.0))
+    fixed_layout = (
+        (0.80, 30.0),
+        (0.75, -40.0),
+        (0.85, 90.0),
+        (0.80, -110.0),
+        (0.75, 150.0),
+        (0.85, -150.0),
+        (0.72, -5.0),
+        (0.88, 60.0),
+    )
     """(radius m, azimuth deg) of each object slot for placement="fixed"; slot 0 is the target."""
     fixed_scene_seed = 0
     same_color_prob = 0.5
@@ -105,7 +113,9 @@ class ActiveVisionFindEnv(BaseEnv):
         _check_choice("start_pose", start_pose, START_POSES)
         for name, value in (("obs_mode", obs_mode), ("reward_mode", reward_mode), ("control_mode", control_mode)):
             if value is not None:
-                _check_choice(name, value, dict(obs_mode=OBS_MODES, reward_mode=REWARD_MODES, control_mode=CONTROL_MODES)[name])
+                _check_choice(
+                    name, value, dict(obs_mode=OBS_MODES, reward_mode=REWARD_MODES, control_mode=CONTROL_MODES)[name]
+                )
         if not (isinstance(num_objects, (int, np.integer)) and 1 <= num_objects <= self.max_objects):
             raise ValueError(f"num_objects={num_objects!r} must be an integer from 1 to {self.max_objects}")
         if not 0 < step_size <= 0.1:
@@ -129,8 +139,14 @@ class ActiveVisionFindEnv(BaseEnv):
         if reconfiguration_freq is None:
             reconfiguration_freq = 1 if num_envs == 1 else 0
         super().__init__(
-            *args, robot_uids=robot_uids, num_envs=num_envs, reconfiguration_freq=reconfiguration_freq,
-            obs_mode=obs_mode, reward_mode=reward_mode, control_mode=control_mode, **kwargs,
+            *args,
+            robot_uids=robot_uids,
+            num_envs=num_envs,
+            reconfiguration_freq=reconfiguration_freq,
+            obs_mode=obs_mode,
+            reward_mode=reward_mode,
+            control_mode=control_mode,
+            **kwargs,
         )
 
     # ------------------------------------------------------------------ scene
@@ -140,7 +156,9 @@ class ActiveVisionFindEnv(BaseEnv):
         size = self.target_image_size
         look_at = np.array(self.studio_pos) + [0, 0, 0.04]
         eye = look_at + 0.22 * np.array([-math.cos(math.radians(50)), 0, math.sin(math.radians(50))])
-        return [CameraConfig("target_camera", sapien_utils.look_at(eye, look_at), size, size, math.radians(40), 0.01, 2.0)]
+        return [
+            CameraConfig("target_camera", sapien_utils.look_at(eye, look_at), size, size, math.radians(40), 0.01, 2.0)
+        ]
 
     @property
     def _default_human_render_camera_configs(self):
@@ -161,7 +179,11 @@ class ActiveVisionFindEnv(BaseEnv):
         slots = [[] for _ in range(self.num_objects)]
         copies, bottoms, self.object_names = [], [], []
         for env in range(self.num_envs):
-            rng = np.random.RandomState(self.fixed_scene_seed) if self.placement == "fixed" else self._batched_episode_rng[env]
+            rng = (
+                np.random.RandomState(self.fixed_scene_seed)
+                if self.placement == "fixed"
+                else self._batched_episode_rng[env]
+            )
             picks = rng.choice(len(models), self.num_objects, replace=False)
             chosen = [models[i] for i in picks]
             colors = [m.color for m in chosen]
@@ -265,7 +287,8 @@ class ActiveVisionFindEnv(BaseEnv):
             raise ValueError(
                 f"action of shape {shape} ({action!r:.40}) does not fit control_mode={self.control_mode!r}: expected a "
                 f"Cartesian step of shape {expected} (metres). For the six discrete directions (an index), wrap the "
-                "env in mani_active_vision.DiscreteDirections, or build it with mani_active_vision.make_env")
+                "env in mani_active_vision.DiscreteDirections, or build it with mani_active_vision.make_env"
+            )
 
     def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
         self._hand_images = None

@@ -13,8 +13,12 @@ _ENVS = {}
 
 def cached_task(**kwargs):
     """A cached `ActiveVisionFind-v0` at 64² (small and fast); callers must reset it themselves."""
-    kwargs = {"obs_mode": "rgb+segmentation", "render_backend": "cpu",
-              "sensor_configs": dict(hand_camera=dict(width=64, height=64)), **kwargs}
+    kwargs = {
+        "obs_mode": "rgb+segmentation",
+        "render_backend": "cpu",
+        "sensor_configs": dict(hand_camera=dict(width=64, height=64)),
+        **kwargs,
+    }
     key = repr(sorted(kwargs.items()))
     if key not in _ENVS:
         _ENVS[key] = gym.make("ActiveVisionFind-v0", **kwargs)

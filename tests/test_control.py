@@ -26,9 +26,13 @@ def _box_env(**kwargs):
 
 def _batch(n=64, state_dim=4, seed=0):
     g = torch.Generator().manual_seed(seed)
-    return {"states": torch.rand(n, state_dim, generator=g), "actions": torch.randint(0, 6, (n,), generator=g),
-            "rewards": torch.rand(n, generator=g), "next_states": torch.rand(n, state_dim, generator=g),
-            "terminated": (torch.rand(n, generator=g) < 0.2).float()}
+    return {
+        "states": torch.rand(n, state_dim, generator=g),
+        "actions": torch.randint(0, 6, (n,), generator=g),
+        "rewards": torch.rand(n, generator=g),
+        "next_states": torch.rand(n, state_dim, generator=g),
+        "terminated": (torch.rand(n, generator=g) < 0.2).float(),
+    }
 
 
 @pytest.mark.parametrize("double_dqn,huber", [(False, False), (True, True)])
@@ -52,8 +56,13 @@ def test_td_target_uses_reward_discount_and_termination():
     for net, value in ((q_network, 0.0), (target_network, 2.0)):
         torch.nn.init.zeros_(net.network[2].weight)
         torch.nn.init.constant_(net.network[2].bias, value)
-    batch = {"states": torch.zeros(2, 4), "actions": torch.tensor([0, 1]), "rewards": torch.tensor([1.0, 1.0]),
-             "next_states": torch.zeros(2, 4), "terminated": torch.tensor([0.0, 1.0])}
+    batch = {
+        "states": torch.zeros(2, 4),
+        "actions": torch.tensor([0, 1]),
+        "rewards": torch.tensor([1.0, 1.0]),
+        "next_states": torch.zeros(2, 4),
+        "terminated": torch.tensor([0.0, 1.0]),
+    }
     # targets 1 + 0.5 * 2 = 2 and 1 (terminated); Q = 0: squared errors 4 and 1
     assert dqn.td_loss(q_network, target_network, batch, gamma=0.5).item() == pytest.approx(2.5)
 
@@ -110,12 +119,21 @@ def test_every_policy_acts_in_the_action_space(tmp_path):
             assert action.shape == (1,) and action.dtype == np.int64 and env.action_space.contains(int(action[0])), name
             obs, _, _, _, info = env.step(action)
     with pytest.raises(ValueError, match="expects a state of 4"):
-        make_policy("dqn", BoxState(mav.DiscreteDirections(cached_task(placement="random")), with_ee_pos=True), checkpoint=checkpoint)
+        make_policy(
+            "dqn",
+            BoxState(mav.DiscreteDirections(cached_task(placement="random")), with_ee_pos=True),
+            checkpoint=checkpoint,
+        )
 
 
 def _trajectory(visible, success, target_fraction, rewards):
     t = Trajectory()
-    t.visible, t.success, t.target_fraction, t.rewards = list(visible), list(success), list(target_fraction), list(rewards)
+    t.visible, t.success, t.target_fraction, t.rewards = (
+        list(visible),
+        list(success),
+        list(target_fraction),
+        list(rewards),
+    )
     return t
 
 
@@ -123,12 +141,24 @@ def test_metrics_on_hand_made_trajectories():
     # entry 0 is the reset; success first at step 3, lost at the end
     t = _trajectory([0, 0, 1, 1, 1], [0, 0, 0, 1, 0], [0, 0, 0.05, 0.12, 0.09], [0, 0.05, 0.12, 0.09])
     m = episode_metrics(t, reference_steps=2)
-    assert m == {"success": 1.0, "success_final": 0.0, "steps_to_see": 2.0, "steps_to_success": 3.0, "spl": pytest.approx(2 / 3),
-                 "final_target_fraction": 0.09, "return": pytest.approx(0.26)}
+    assert m == {
+        "success": 1.0,
+        "success_final": 0.0,
+        "steps_to_see": 2.0,
+        "steps_to_success": 3.0,
+        "spl": pytest.approx(2 / 3),
+        "final_target_fraction": 0.09,
+        "return": pytest.approx(0.26),
+    }
     assert episode_metrics(t, reference_steps=7)["spl"] == 1.0  # the agent's path is the shortest known
     assert episode_metrics(t)["spl"] == 1.0
     never = episode_metrics(_trajectory([1, 1], [0, 0], [0.01, 0.02], [0.02]), reference_steps=2)
-    assert never["success"] == 0 and never["spl"] == 0 and math.isnan(never["steps_to_success"]) and never["steps_to_see"] == 0
+    assert (
+        never["success"] == 0
+        and never["spl"] == 0
+        and math.isnan(never["steps_to_success"])
+        and never["steps_to_see"] == 0
+    )
     summary = summarize([m, never])
     assert summary["success"] == 0.5 and summary["steps_to_success"] == 3.0 and summary["steps_to_see"] == 1.0
     assert "| a | 2 | 0.50 |" in markdown_table({"a": summary})
@@ -159,6 +189,7 @@ def test_mirrored_transitions_and_shaping_potentials():
     assert not dqn.mirror_state(np.zeros(4)).any()  # unseen stays unseen
     last_left = np.array([0.1, 0.2, 0.3, 0.4, 1, 0, 0, 0, 0, 0])  # with the last direction: left -> right
     np.testing.assert_allclose(dqn.mirror_state(last_left), [0.6, 0.2, 0.3, 0.4, 0, 1, 0, 0, 0, 0])
+
     def info(fraction):
         return {"target_fraction": torch.tensor([fraction])}
 
@@ -166,7 +197,9 @@ def test_mirrored_transitions_and_shaping_potentials():
     assert dqn.potential(info(0.02), 0.05, "fraction") == pytest.approx(0.4)
     assert dqn.potential(info(0.2), 0.05, "fraction") == 1.0
     fractions = (0.0, 0.0005, 0.005, 0.05, 0.5)
-    assert [dqn.potential(info(f), 0.05, "log_fraction") for f in fractions] == pytest.approx([0, 0, 0.5, 1, 1], abs=1e-6)
+    assert [dqn.potential(info(f), 0.05, "log_fraction") for f in fractions] == pytest.approx(
+        [0, 0, 0.5, 1, 1], abs=1e-6
+    )
     seen = {"target_fraction": torch.tensor([0.005]), "target_center_offset": torch.tensor([0.1])}
     assert dqn.potential(seen, 0.05, "log_fraction_centred") == pytest.approx(0.5 * (0.5 + 0.8))
     unseen = {"target_fraction": torch.tensor([0.0]), "target_center_offset": torch.tensor([float("inf")])}
@@ -176,7 +209,9 @@ def test_mirrored_transitions_and_shaping_potentials():
 
 
 def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
-    args = dqn.Args(**dqn.SHAPED, env=EnvConfig(max_episode_steps=40), episodes=2, learning_starts=20, run_dir=str(tmp_path))
+    args = dqn.Args(
+        **dqn.SHAPED, env=EnvConfig(max_episode_steps=40), episodes=2, learning_starts=20, run_dir=str(tmp_path)
+    )
     result = dqn.train(args, progress=False)
     learner_steps = sum(h["learner_steps"] for h in result["history"])
     assert learner_steps > 0 and result["transitions"] == 2 * learner_steps
@@ -204,10 +239,20 @@ def test_n_step_window_sums_discounted_rewards_and_flushes_at_the_end():
     assert window.push("s0", 0, 1.0, "s1", False, False) == [] and window.push("s1", 1, 2.0, "s2", False, False) == []
     assert window.push("s2", 2, 4.0, "s3", False, False) == [("s0", 0, 1 + 0.5 * 2 + 0.25 * 4, "s3", False, 3)]
     tails = window.push("s3", 3, 8.0, "s4", True, True)  # the episode ends: every pending step is flushed
-    assert tails == [("s1", 1, 2 + 0.5 * 4 + 0.25 * 8, "s4", True, 3), ("s2", 2, 4 + 0.5 * 8, "s4", True, 2), ("s3", 3, 8.0, "s4", True, 1)]
+    assert tails == [
+        ("s1", 1, 2 + 0.5 * 4 + 0.25 * 8, "s4", True, 3),
+        ("s2", 2, 4 + 0.5 * 8, "s4", True, 2),
+        ("s3", 3, 8.0, "s4", True, 1),
+    ]
     assert window.pending == []
-    batch = {"states": torch.zeros(2, 4), "actions": torch.zeros(2, dtype=torch.long), "rewards": torch.tensor([1.0, 1.0]),
-             "next_states": torch.zeros(2, 4), "terminated": torch.zeros(2), "steps": torch.tensor([1.0, 3.0])}
+    batch = {
+        "states": torch.zeros(2, 4),
+        "actions": torch.zeros(2, dtype=torch.long),
+        "rewards": torch.tensor([1.0, 1.0]),
+        "next_states": torch.zeros(2, 4),
+        "terminated": torch.zeros(2),
+        "steps": torch.tensor([1.0, 3.0]),
+    }
     q = dqn.QNetwork(4)
     with torch.no_grad():
         value = q(torch.zeros(1, 4)).max().item()

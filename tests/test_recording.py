@@ -34,9 +34,15 @@ def strict_mode():
 
 def fresh_env():
     # Not the cached conftest env: closing the recorder closes the env it wraps.
-    return mav.DiscreteDirections(gym.make(
-        "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
-        sensor_configs=dict(hand_camera=dict(width=64, height=64))))
+    return mav.DiscreteDirections(
+        gym.make(
+            "ActiveVisionFind-v0",
+            obs_mode="rgb+segmentation",
+            render_backend="cpu",
+            start_pose="search",
+            sensor_configs=dict(hand_camera=dict(width=64, height=64)),
+        )
+    )
 
 
 def verify(path):
@@ -123,13 +129,12 @@ def test_no_mask_entity_without_a_box_state_and_raw_images(tmp_path):
 
 def test_exception_mid_rollout_leaves_a_valid_file(tmp_path):
     path = tmp_path / "crash.rrd"
-    with pytest.raises(RuntimeError, match="policy crashed"):
-        with RerunRecorder(fresh_env(), str(path)) as env:
-            env.reset(seed=0)
-            for t in range(10):
-                if t == 3:
-                    raise RuntimeError("policy crashed")
-                env.step(0)
+    with pytest.raises(RuntimeError, match="policy crashed"), RerunRecorder(fresh_env(), str(path)) as env:
+        env.reset(seed=0)
+        for t in range(10):
+            if t == 3:
+                raise RuntimeError("policy crashed")
+            env.step(0)
     verify(path)
     rows = temporal_rows(path)
     assert rows["world/env0/camera/image/rgb"] == 4 and rows["env0/action"] == 3
@@ -140,8 +145,21 @@ def test_exception_mid_rollout_leaves_a_valid_file(tmp_path):
 def test_ctrl_c_leaves_a_valid_file(tmp_path):
     path = tmp_path / "interrupted.rrd"
     process = subprocess.Popen(
-        [sys.executable, os.path.join(ROOT, "baselines", "record.py"), "--episodes", "50", "--env.image-size", "64",
-         "--out", str(path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        [
+            sys.executable,
+            os.path.join(ROOT, "baselines", "record.py"),
+            "--episodes",
+            "50",
+            "--env.image-size",
+            "64",
+            "--out",
+            str(path),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 180
         while not (path.exists() and path.stat().st_size > 100_000):  # a few dozen steps are written
@@ -181,9 +199,18 @@ def test_vector_env_with_autoreset_is_recorded_per_env(tmp_path):
     from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
     def make():
-        return CPUGymWrapper(mav.DiscreteDirections(gym.make(
-            "ActiveVisionFind-v0", obs_mode="rgb+segmentation", render_backend="cpu", start_pose="search",
-            max_episode_steps=4, sensor_configs=dict(hand_camera=dict(width=64, height=64)))))
+        return CPUGymWrapper(
+            mav.DiscreteDirections(
+                gym.make(
+                    "ActiveVisionFind-v0",
+                    obs_mode="rgb+segmentation",
+                    render_backend="cpu",
+                    start_pose="search",
+                    max_episode_steps=4,
+                    sensor_configs=dict(hand_camera=dict(width=64, height=64)),
+                )
+            )
+        )
 
     path = tmp_path / "vector.rrd"
     with RerunVectorRecorder(gym.vector.SyncVectorEnv([make, make]), str(path)) as env:

@@ -53,8 +53,10 @@ def test_each_direction_moves_one_step_its_way_and_keeps_the_rule(direction):
             turn = math.atan2(float(after[1]), float(after[0])) - azimuth
             assert turn > 0 if name == "left" else turn < 0
         else:
-            expected = {"forward": camera_forward(torch.tensor([azimuth]), math.radians(60))[0],
-                        "up": torch.tensor([0.0, 0.0, 1.0])}
+            expected = {
+                "forward": camera_forward(torch.tensor([azimuth]), math.radians(60))[0],
+                "up": torch.tensor([0.0, 0.0, 1.0]),
+            }
             unit = expected.get(name.replace("backward", "forward").replace("down", "up"))
             sign = -1 if name in ("backward", "down") else 1
             assert float(moved @ (sign * unit.float())) / step > 0.98

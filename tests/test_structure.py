@@ -30,7 +30,9 @@ def test_env_config_validates_and_replaces_by_name():
     with pytest.raises(ValueError, match="with_ee_pos appends to the box state"):
         EnvConfig(box_source="none", with_ee_pos=True)
     config = EnvConfig().replace(object_set="unseen", image_size=32)
-    assert config.object_set == "unseen" and config.task_kwargs()["sensor_configs"] == {"hand_camera": {"width": 32, "height": 32}}
+    assert config.object_set == "unseen" and config.task_kwargs()["sensor_configs"] == {
+        "hand_camera": {"width": 32, "height": 32}
+    }
     with pytest.raises(TypeError, match="no option colour; options: num_objects, object_set"):
         config.replace(colour="red")
     assert EnvConfig.from_dict(dataclasses.asdict(config)) == config
@@ -70,7 +72,9 @@ def test_checkpoint_env_is_the_default_and_flags_override_it(tmp_path):
     args = cli_with_checkpoint_env(Args, ["--checkpoint", path, "--env.object-set", "unseen"])
     assert args.env == trained.replace(object_set="unseen")  # one field overridden, the rest as trained
     assert cli_with_checkpoint_env(Args, []).env == EnvConfig()
-    torch.save({"state_dict": QNetwork(4).state_dict(), "config": {"state_dim": 4, "hidden_units": 20}}, tmp_path / "old.pt")
+    torch.save(
+        {"state_dict": QNetwork(4).state_dict(), "config": {"state_dim": 4, "hidden_units": 20}}, tmp_path / "old.pt"
+    )
     with pytest.raises(ValueError, match="has no env config"):
         load_q_network(str(tmp_path / "old.pt"))
 
@@ -86,7 +90,9 @@ def test_json_files_hold_null_not_nan(tmp_path):
 def test_a_direction_index_sent_to_the_raw_task_names_the_expected_shape():
     env = cached_task(start_pose="search")
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"shape \(\).*expected a Cartesian step of shape \(3,\) or \(1, 3\).*DiscreteDirections"):
+    with pytest.raises(
+        ValueError, match=r"shape \(\).*expected a Cartesian step of shape \(3,\) or \(1, 3\).*DiscreteDirections"
+    ):
         env.step(2)
     env.step(np.zeros(3, np.float32))  # the right shape still steps
     with pytest.raises(ValueError, match="out of range"):
@@ -109,14 +115,21 @@ def test_pushed_policy_focuses_pushes_and_recovers():
 
     env = gym.make("CartPole-v1")
     env.unwrapped.num_envs = 1
-    pushed = PushedPolicy(env, Always(), push_direction=mav.DIRECTIONS.index("up"), push_steps=2, focus_limit=5, recover_limit=3)
+    pushed = PushedPolicy(
+        env, Always(), push_direction=mav.DIRECTIONS.index("up"), push_steps=2, focus_limit=5, recover_limit=3
+    )
     pushed.reset(None, {})
     history = [False]
     for success, expect_stop in ((False, False), (True, False)):  # focus at the second step
         history.append(success)
         assert pushed.stop(_trajectory(history)) == expect_stop
     assert pushed.phase == "push" and int(pushed.act(None, {})[0]) == mav.DIRECTIONS.index("up")
-    for success, expect_stop in ((False, False), (False, False), (False, False), (True, True)):  # 2 pushes, 2 to recover
+    for success, expect_stop in (
+        (False, False),
+        (False, False),
+        (False, False),
+        (True, True),
+    ):  # 2 pushes, 2 to recover
         history.append(success)
         assert pushed.stop(_trajectory(history, [True] * len(history))) == expect_stop
     assert pushed.result == {"focused": True, "visible_after_push": True, "recovered": True, "steps_to_recover": 2.0}

@@ -33,7 +33,9 @@ def test_batched_shapes_and_step(pool):
     assert obs.shape == (2, 7) and obs.dtype == np.float32
     np.testing.assert_allclose(obs[:, 4:], [[0.30, 0.0, 0.90]] * 2, atol=1e-5)  # the search pose
     for _ in range(3):
-        obs, reward, terminated, truncated, info = pool.step(np.array([mav.DIRECTIONS.index("up"), mav.DIRECTIONS.index("down")]))
+        obs, reward, terminated, truncated, info = pool.step(
+            np.array([mav.DIRECTIONS.index("up"), mav.DIRECTIONS.index("down")])
+        )
     assert obs.shape == (2, 7) and reward.shape == (2,) and terminated.shape == truncated.shape == (2,)
     assert info["target_bbox"].shape == (2, 4) and info["target_fraction"].shape == (2,)
     np.testing.assert_allclose(obs[:, :4], info["target_bbox"], atol=1e-6)  # BoxState ran in the workers
@@ -100,7 +102,9 @@ def test_a_direction_index_without_discrete_directions_says_what_to_do():
     env = make_vec_env("ActiveVisionFind-v0", 1, sensor_configs=dict(hand_camera=dict(width=32, height=32)))
     try:
         env.reset(seed=0)
-        with pytest.raises(ValueError, match=r"shape \(\).*expected a Cartesian step of shape \(3,\).*DiscreteDirections"):
+        with pytest.raises(
+            ValueError, match=r"shape \(\).*expected a Cartesian step of shape \(3,\).*DiscreteDirections"
+        ):
             env.step(np.array([2]))
     finally:
         env.close()

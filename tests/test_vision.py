@@ -8,12 +8,24 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents.fcn import (
-    FCNConfig, OneShotFCN, class_weights, flip_horizontally, images_to_input, load_checkpoint, load_pretrained,
-    mask_counts, save_checkpoint, soft_iou_loss, summarize_counts,
+    FCNConfig,
+    OneShotFCN,
+    class_weights,
+    flip_horizontally,
+    images_to_input,
+    load_checkpoint,
+    load_pretrained,
+    mask_counts,
+    save_checkpoint,
+    soft_iou_loss,
+    summarize_counts,
 )
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.segmentation_data import (
-    SegmentationDataConfig, collect_segmentation_data, load_segmentation_data, render_scene_views,
+    SegmentationDataConfig,
+    collect_segmentation_data,
+    load_segmentation_data,
+    render_scene_views,
 )
 
 SHIPPED_UNSEEN_IOU = 0.85
@@ -112,7 +124,9 @@ def test_a_few_training_steps_lower_the_loss():
 def test_shipped_weights_segment_unseen_objects():
     model = load_pretrained()
     data = _render(object_set="unseen", scenes=(900001, 900002, 900003), views=8, mode_probs=(1.0, 0.0, 0.0))
-    metrics = summarize_counts(mask_counts(model.predict(data["scene"], data["target"]), torch.from_numpy(data["mask"])))
+    metrics = summarize_counts(
+        mask_counts(model.predict(data["scene"], data["target"]), torch.from_numpy(data["mask"]))
+    )
     assert metrics["samples_with_target"] >= 10
     assert metrics["target_iou"] > SHIPPED_UNSEEN_IOU, metrics
 
@@ -188,8 +202,11 @@ def test_largest_component_keeps_the_biggest_region_or_nothing():
 
 
 def test_box_state_from_fcn_and_its_last_mask():
-    env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb")), source="fcn",
-                   segmenter=load_pretrained())
+    env = BoxState(
+        mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb")),
+        source="fcn",
+        segmenter=load_pretrained(),
+    )
     obs, info = env.reset(seed=0)
     for action in (0, 0, 0, 2):
         obs, _, _, _, info = env.step(action)

@@ -14,8 +14,15 @@ from mani_active_vision.box_state import BoxState
 
 
 def _cpu_env(**kwargs):
-    return CPUGymWrapper(gym.make("ActiveVisionFind-v0", render_backend="cpu", start_pose="search",
-                                  sensor_configs=dict(hand_camera=dict(width=32, height=32)), **kwargs))
+    return CPUGymWrapper(
+        gym.make(
+            "ActiveVisionFind-v0",
+            render_backend="cpu",
+            start_pose="search",
+            sensor_configs=dict(hand_camera=dict(width=32, height=32)),
+            **kwargs,
+        )
+    )
 
 
 def test_gymnasium_env_checker_passes():
@@ -31,12 +38,13 @@ def test_gymnasium_env_checker_passes():
 
 
 def test_record_episode_writes_the_trajectory(tmp_path):
-    env = RecordEpisode(cached_task(start_pose="search"), output_dir=str(tmp_path), save_video=False, save_trajectory=True)
+    env = RecordEpisode(
+        cached_task(start_pose="search"), output_dir=str(tmp_path), save_video=False, save_trajectory=True
+    )
     env = mav.DiscreteDirections(env)
     env.reset(seed=0)
     for a in [0, 2, 4]:
         env.step(a)
-    env.unwrapped  # RecordEpisode flushes on close
     env.env.flush_trajectory()
     files = list(tmp_path.glob("*.h5"))
     assert files

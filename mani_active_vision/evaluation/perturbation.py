@@ -15,8 +15,15 @@ class PushedPolicy:
     `push_direction` (the policy is not asked), then `policy` again until success (at most `recover_limit`
     steps). `stop(trajectory)` ends the episode when the trial is decided; `result` says how it went."""
 
-    def __init__(self, env, policy, push_direction: int, push_steps: int, focus_limit: int = 100, recover_limit: int = 50):
-        self.policy, self.push_steps, self.focus_limit, self.recover_limit = policy, push_steps, focus_limit, recover_limit
+    def __init__(
+        self, env, policy, push_direction: int, push_steps: int, focus_limit: int = 100, recover_limit: int = 50
+    ):
+        self.policy, self.push_steps, self.focus_limit, self.recover_limit = (
+            policy,
+            push_steps,
+            focus_limit,
+            recover_limit,
+        )
         self.push = np.full(env.unwrapped.num_envs, push_direction, dtype=np.int64)
 
     def reset(self, obs, info):
@@ -51,8 +58,9 @@ class PushedPolicy:
         return False
 
 
-def perturbation_trial(env, policy, seed: int, push_direction: int, push_steps: int, focus_limit: int = 100,
-                       recover_limit: int = 50) -> dict:
+def perturbation_trial(
+    env, policy, seed: int, push_direction: int, push_steps: int, focus_limit: int = 100, recover_limit: int = 50
+) -> dict:
     """One trial on `seed`: {"focused", "visible_after_push", "recovered", "steps_to_recover" (NaN if not)}.
     The env needs a step limit of at least focus_limit + push_steps + recover_limit."""
     pushed = PushedPolicy(env, policy, push_direction, push_steps, focus_limit, recover_limit)

@@ -19,7 +19,9 @@ def eval_seeds(episodes: int, first: int = EVAL_SEED) -> range:
     return range(first, first + episodes)
 
 
-def evaluate(env, policy, seeds, with_reference: bool = True, desc: str = "evaluate", progress: bool = True) -> list[dict]:
+def evaluate(
+    env, policy, seeds, with_reference: bool = True, desc: str = "evaluate", progress: bool = True
+) -> list[dict]:
     """Per-episode metrics of `policy` on the given episode seeds (with the reference's steps for SPL)."""
     episodes = []
     with stop_on_ctrl_c() as stop_requested:  # also between episodes: a reset is never cut in half

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import matplotlib
@@ -13,21 +14,30 @@ import numpy as np  # noqa: E402
 
 def markdown_table(rows: dict[str, dict]) -> str:
     """rows: name -> `metrics.summarize` output; one row each, mean ± std."""
-    header = ("| policy | episodes | success | success at end | steps to see | steps to success | SPL "
-              "| final target fraction | return |")
+    header = (
+        "| policy | episodes | success | success at end | steps to see | steps to success | SPL "
+        "| final target fraction | return |"
+    )
     lines = [header, "|" + "---|" * 9]
     for name, s in rows.items():
-        def cell(key, fmt="{:.2f}"):
-            return "–" if math.isnan(s[key]) else f"{fmt.format(s[key])} ± {fmt.format(s[key + '_std'])}"
-
-        lines.append(f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | "
-                     f"{cell('steps_to_see', '{:.1f}')} | {cell('steps_to_success', '{:.1f}')} | {s['spl']:.2f} | "
-                     f"{cell('final_target_fraction', '{:.3f}')} | {cell('return')} |")
+        cell = functools.partial(_cell, s)
+        lines.append(
+            f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | "
+            f"{cell('steps_to_see', '{:.1f}')} | {cell('steps_to_success', '{:.1f}')} | {s['spl']:.2f} | "
+            f"{cell('final_target_fraction', '{:.3f}')} | {cell('return')} |"
+        )
     return "\n".join(lines)
 
 
+def _cell(summary: dict, key: str, fmt: str = "{:.2f}") -> str:
+    """ "mean ± std" of one metric of a summary, "–" when it does not exist."""
+    if math.isnan(summary[key]):
+        return "–"
+    return f"{fmt.format(summary[key])} ± {fmt.format(summary[key + '_std'])}"
+
+
 def spread(values, digits: int = 2) -> str:
-    """"mean ± std" of values (None and NaN left out), "–" when there are none."""
+    """ "mean ± std" of values (None and NaN left out), "–" when there are none."""
     values = np.asarray([np.nan if v is None else v for v in values], dtype=float)
     if np.isnan(values).all():
         return "–"

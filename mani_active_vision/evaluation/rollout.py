@@ -17,8 +17,9 @@ import torch
 from mani_active_vision.metrics import Trajectory
 
 
-def run_episode(env, policy, seed: int | None, max_steps: int | None = None,
-                stop: Callable[[Trajectory], bool] | None = None) -> Trajectory:
+def run_episode(
+    env, policy, seed: int | None, max_steps: int | None = None, stop: Callable[[Trajectory], bool] | None = None
+) -> Trajectory:
     """One episode of `policy` on env 0 from `env.reset(seed=seed)`, until it terminates or is truncated,
     after `max_steps` steps, or when `stop(trajectory)` says so (checked after every step)."""
     obs, info = env.reset(seed=seed)

@@ -16,8 +16,11 @@ def env_layout(i: int) -> rrb.Horizontal:
         ),
         rrb.Spatial3DView(name=f"env{i} 3D", origin=f"world/env{i}"),
         rrb.Vertical(
-            rrb.TimeSeriesView(name="reward and target fraction", origin=f"env{i}",
-                               contents=[f"env{i}/reward", f"env{i}/target_fraction"]),
+            rrb.TimeSeriesView(
+                name="reward and target fraction",
+                origin=f"env{i}",
+                contents=[f"env{i}/reward", f"env{i}/target_fraction"],
+            ),
             rrb.TimeSeriesView(name="success", origin=f"env{i}", contents=[f"env{i}/success"]),
             rrb.TextLogView(name="actions and outcomes", origin=f"env{i}"),
         ),

@@ -9,8 +9,15 @@ import rerun as rr
 from mani_active_vision.directions import DIRECTIONS
 
 TARGET_COLOR = (230, 40, 40)
-DISTRACTOR_COLORS = [(40, 120, 230), (40, 190, 90), (230, 170, 30), (170, 60, 210), (30, 200, 200), (240, 110, 180),
-                     (140, 140, 40)]
+DISTRACTOR_COLORS = [
+    (40, 120, 230),
+    (40, 190, 90),
+    (230, 170, 30),
+    (170, 60, 210),
+    (30, 200, 200),
+    (240, 110, 180),
+    (140, 140, 40),
+]
 ROBOT_COLOR = (150, 150, 150)
 GROUND_COLOR = (0, 0, 0, 0)  # transparent: the overlay highlights objects and the robot, not the floor
 MASK_COLOR = (255, 220, 0)
@@ -21,22 +28,47 @@ def camera(i: int) -> str:
     return f"world/env{i}/camera"
 
 
-def log_episode_start(stream, i: int, episode: int, classes, intrinsics, width: int, height: int, target_image=None,
-                      object_positions=None, labels=None, colors=None):
+def log_episode_start(
+    stream,
+    i: int,
+    episode: int,
+    classes,
+    intrinsics,
+    width: int,
+    height: int,
+    target_image=None,
+    object_positions=None,
+    labels=None,
+    colors=None,
+):
     """The scene's segmentation classes (id, label, colour), the camera's pinhole, the target image and the
     objects' positions."""
     stream.log(f"world/env{i}", rr.AnnotationContext(classes))
     if object_positions is not None:
         stream.log(f"world/env{i}/objects", rr.Points3D(object_positions, labels=labels, colors=colors, radii=0.03))
-    stream.log(f"{camera(i)}/image", rr.Pinhole(image_from_camera=intrinsics, resolution=[width, height],
-                                                 camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.15))
+    stream.log(
+        f"{camera(i)}/image",
+        rr.Pinhole(
+            image_from_camera=intrinsics,
+            resolution=[width, height],
+            camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=0.15,
+        ),
+    )
     if target_image is not None:
         stream.log(f"env{i}/target_image", rr.Image(target_image))
     stream.log(f"env{i}/outcome", rr.TextLog(f"episode {episode} starts", level="INFO"))
 
 
-def log_camera_frame(stream, i: int, rgb: np.ndarray, extrinsic: np.ndarray, segmentation=None, target_box=None,
-                     jpeg_quality: int | None = 90) -> np.ndarray:
+def log_camera_frame(
+    stream,
+    i: int,
+    rgb: np.ndarray,
+    extrinsic: np.ndarray,
+    segmentation=None,
+    target_box=None,
+    jpeg_quality: int | None = 90,
+) -> np.ndarray:
     """The camera's pose (from its OpenCV extrinsic), the wrist image (JPEG unless `jpeg_quality` is None),
     the segmentation and the ground-truth box; returns the camera's centre in the world."""
     rotation = extrinsic[:, :3].T  # world-from-camera (OpenCV axes: right, down, forward)
@@ -68,8 +100,9 @@ def log_ee_path(stream, i: int, path: list):
     stream.log(f"world/env{i}/ee_path", rr.LineStrips3D([np.array(path)], colors=[PATH_COLOR], radii=0.004))
 
 
-def log_transition(stream, i: int, action: np.ndarray, refused: bool, reward: float, success: bool,
-                   target_fraction: float | None):
+def log_transition(
+    stream, i: int, action: np.ndarray, refused: bool, reward: float, success: bool, target_fraction: float | None
+):
     """What one step did: the action's name, its reward, success and the target's fraction of the image."""
     stream.log(f"env{i}/action", rr.TextLog(action_name(action) + (" (refused)" if refused else ""), level="DEBUG"))
     stream.log(f"env{i}/reward", rr.Scalars(float(reward)))
@@ -94,5 +127,10 @@ def box_2d(box, width: int, height: int, label: str, color) -> rr.Boxes2D:
     x, y, w, h = (float(v) for v in box)
     if w <= 0 or h <= 0:
         return rr.Boxes2D(mins=np.zeros((0, 2)), sizes=np.zeros((0, 2)))
-    return rr.Boxes2D(mins=[[x * width, y * height]], sizes=[[w * width, h * height]], labels=[label], colors=[color],
-                      show_labels=False)
+    return rr.Boxes2D(
+        mins=[[x * width, y * height]],
+        sizes=[[w * width, h * height]],
+        labels=[label],
+        colors=[color],
+        show_labels=False,
+    )

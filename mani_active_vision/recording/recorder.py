@@ -48,8 +48,14 @@ class Recording:
     """One `.rrd` file and what is logged to it, episode by episode, for `num_envs` envs; the wrappers
     below call it. `close()` writes the file's footer (safe to call twice)."""
 
-    def __init__(self, path: str, num_envs: int, image_format: str = "jpeg", jpeg_quality: int = 90,
-                 application_id: str = "mani_active_vision"):
+    def __init__(
+        self,
+        path: str,
+        num_envs: int,
+        image_format: str = "jpeg",
+        jpeg_quality: int = 90,
+        application_id: str = "mani_active_vision",
+    ):
         if image_format not in IMAGE_FORMATS:
             raise ValueError(f"image_format={image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}")
         if not 1 <= int(jpeg_quality) <= 100:
@@ -80,16 +86,29 @@ class Recording:
             self.episodes[i] = dict(ret=0.0, steps=0, first_success=None, path=[], done=False)
             self.at(i)
             classes, positions, labels, colors = scene(i)
-            log.log_episode_start(self.stream, i, int(self.episode[i]), classes, intrinsics[i], width, height,
-                                  None if target_images is None else target_images[i], positions, labels, colors)
+            log.log_episode_start(
+                self.stream,
+                i,
+                int(self.episode[i]),
+                classes,
+                intrinsics[i],
+                width,
+                height,
+                None if target_images is None else target_images[i],
+                positions,
+                labels,
+                colors,
+            )
 
     def frame(self, obs: dict, info: dict, mask=None, mask_source: str = ""):
         """The observation of every env (and the box state's mask (N, H, W), when there is one)."""
         camera = obs["sensor_data"]["hand_camera"]
         rgb = _numpy(camera["rgb"])
         if rgb.ndim != 4 or len(rgb) != self.num_envs:
-            raise ValueError(f"the recorder needs batch-first observations (N={self.num_envs}, H, W, 3), got rgb of "
-                             f"shape {rgb.shape}: put RerunRecorder inside CPUGymWrapper, or use RerunVectorRecorder")
+            raise ValueError(
+                f"the recorder needs batch-first observations (N={self.num_envs}, H, W, 3), got rgb of "
+                f"shape {rgb.shape}: put RerunRecorder inside CPUGymWrapper, or use RerunVectorRecorder"
+            )
         segmentation = _numpy(camera["segmentation"])[..., 0] if "segmentation" in camera else None
         extrinsics = _numpy(obs["sensor_param"]["hand_camera"]["extrinsic_cv"])
         boxes = _numpy(info["target_bbox"]) if "target_bbox" in info else None
@@ -98,10 +117,19 @@ class Recording:
             mask_boxes, mask = mask_to_box(mask).numpy(), mask.numpy()
         for i in range(self.num_envs):
             self.at(i)
-            centre = log.log_camera_frame(self.stream, i, rgb[i], extrinsics[i], None if segmentation is None else segmentation[i],
-                                          None if boxes is None else boxes[i], self.jpeg_quality)
+            centre = log.log_camera_frame(
+                self.stream,
+                i,
+                rgb[i],
+                extrinsics[i],
+                None if segmentation is None else segmentation[i],
+                None if boxes is None else boxes[i],
+                self.jpeg_quality,
+            )
             if mask is not None:
-                log.log_mask(self.stream, i, mask_source, mask[i], mask_boxes[i], with_context=not self.mask_context_logged)
+                log.log_mask(
+                    self.stream, i, mask_source, mask[i], mask_boxes[i], with_context=not self.mask_context_logged
+                )
             episode = self.episodes[i]
             if not episode["done"]:
                 episode["path"].append(centre)
@@ -126,8 +154,15 @@ class Recording:
             episode["ret"] += float(reward[i])
             if success[i] and episode["first_success"] is None:
                 episode["first_success"] = episode["steps"]
-            log.log_transition(self.stream, i, actions[i], bool(refused[i]), reward[i], bool(success[i]),
-                               None if fraction is None else fraction[i])
+            log.log_transition(
+                self.stream,
+                i,
+                actions[i],
+                bool(refused[i]),
+                reward[i],
+                bool(success[i]),
+                None if fraction is None else fraction[i],
+            )
             if done[i]:
                 self.end_episode(i, bool(success[i]), None if fraction is None else fraction[i], "ended")
         return done
@@ -136,10 +171,12 @@ class Recording:
         episode = self.episodes[i]
         episode["done"] = True
         first = episode["first_success"]
-        text = (f"episode {self.episode[i]} {how} after {episode['steps']} steps: "
-                f"{'success' if success_now else 'no success'} at the end, "
-                f"{'first success at step ' + str(first) if first else 'never successful'}, return {episode['ret']:.3f}"
-                + (f", final target fraction {float(fraction):.3f}" if fraction is not None else ""))
+        text = (
+            f"episode {self.episode[i]} {how} after {episode['steps']} steps: "
+            f"{'success' if success_now else 'no success'} at the end, "
+            f"{'first success at step ' + str(first) if first else 'never successful'}, return {episode['ret']:.3f}"
+            + (f", final target fraction {float(fraction):.3f}" if fraction is not None else "")
+        )
         log.log_outcome(self.stream, i, text, success_now)
 
     def end_unfinished(self, how: str):
@@ -170,9 +207,13 @@ class _Timed:
         """Logging time per step (ms) and as a share of the wrapped env's step time; resets apart."""
         steps = max(self.env_steps, 1)
         step_log_seconds = self.recording.seconds
-        return dict(steps=self.env_steps, log_ms_per_step=1e3 * step_log_seconds / steps,
-                    reset_log_seconds=self.reset_log_seconds, env_ms_per_step=1e3 * self.env_seconds / steps,
-                    log_share_of_env_step=step_log_seconds / max(self.env_seconds, 1e-9))
+        return dict(
+            steps=self.env_steps,
+            log_ms_per_step=1e3 * step_log_seconds / steps,
+            reset_log_seconds=self.reset_log_seconds,
+            env_ms_per_step=1e3 * self.env_seconds / steps,
+            log_share_of_env_step=step_log_seconds / max(self.env_seconds, 1e-9),
+        )
 
     def _timed(self, call, *args, **kwargs):
         start = time.perf_counter()
@@ -197,8 +238,14 @@ class RerunRecorder(_Timed, gym.Wrapper):
     image_format: "jpeg" (default, ~10x smaller) or "raw" for the wrist RGB. jpeg_quality: 1-100.
     """
 
-    def __init__(self, env: gym.Env, path: str, image_format: str = "jpeg", jpeg_quality: int = 90,
-                 application_id: str = "mani_active_vision"):
+    def __init__(
+        self,
+        env: gym.Env,
+        path: str,
+        image_format: str = "jpeg",
+        jpeg_quality: int = 90,
+        application_id: str = "mani_active_vision",
+    ):
         gym.Wrapper.__init__(self, env)
         self.box_state = _find_box_state(env)
         self.recording = Recording(path, env.unwrapped.num_envs, image_format, jpeg_quality, application_id)
@@ -257,8 +304,14 @@ class RerunVectorRecorder(_Timed, gym.vector.VectorWrapper):
     next episode's first observation, which starts that env's next `episode` here. Segmentation classes
     name only the target (the other objects' ids stay in the sub-env processes); no object positions."""
 
-    def __init__(self, env: gym.vector.VectorEnv, path: str, image_format: str = "jpeg", jpeg_quality: int = 90,
-                 application_id: str = "mani_active_vision"):
+    def __init__(
+        self,
+        env: gym.vector.VectorEnv,
+        path: str,
+        image_format: str = "jpeg",
+        jpeg_quality: int = 90,
+        application_id: str = "mani_active_vision",
+    ):
         gym.vector.VectorWrapper.__init__(self, env)
         mode = env.metadata.get("autoreset_mode", gym.vector.AutoresetMode.NEXT_STEP)
         if mode != gym.vector.AutoresetMode.NEXT_STEP:
@@ -289,7 +342,9 @@ class RerunVectorRecorder(_Timed, gym.vector.VectorWrapper):
         self._names = self._target_ids = None
         if len(restarted):
             self.recording.start_episodes(obs, restarted, self._scene)
-        done = self.recording.transition(actions, reward, terminated, truncated, info, np.flatnonzero(~self._restarting))
+        done = self.recording.transition(
+            actions, reward, terminated, truncated, info, np.flatnonzero(~self._restarting)
+        )
         self._restarting = done & ~self._restarting
         self.recording.frame(obs, info)
         self.recording.seconds += time.perf_counter() - start
@@ -325,7 +380,9 @@ def scene_classes(base, i: int):
         return classes, None, None, None
     names = base.object_names[i]
     labels = [f"target: {names[0]}"] + [f"distractor {k}: {names[k]}" for k in range(1, len(names))]
-    colors = [log.TARGET_COLOR] + [log.DISTRACTOR_COLORS[(k - 1) % len(log.DISTRACTOR_COLORS)] for k in range(1, len(names))]
+    colors = [log.TARGET_COLOR] + [
+        log.DISTRACTOR_COLORS[(k - 1) % len(log.DISTRACTOR_COLORS)] for k in range(1, len(names))
+    ]
     for obj, label, color in zip(objects, labels, colors):
         classes.append((int(obj.per_scene_id[i]), label, color))
     positions = np.stack([_numpy(obj.pose.p[i]) for obj in objects])

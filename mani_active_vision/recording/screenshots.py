@@ -12,7 +12,9 @@ import warnings
 from rerun.experimental import ViewerClient
 
 
-def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60.0, settle_tries: int = 20) -> list[str]:
+def screenshots(
+    path: str, steps: list[int], out_dir: str, timeout_s: float = 60.0, settle_tries: int = 20
+) -> list[str]:
     """Render the recording at `path` in a headless native viewer (software Vulkan is enough), with its
     stored blueprint, paused at each global `step`, to `out_dir/<name>_step<k>.png`; returns the PNG paths.
 
@@ -25,8 +27,12 @@ def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     executable = os.path.join(os.path.dirname(sys.executable), "rerun")
-    viewer = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True,
-                                executable_path=executable if os.path.exists(executable) else None)
+    viewer = ViewerClient.spawn(
+        headless=True,
+        port=port,
+        hide_welcome_screen=True,
+        executable_path=executable if os.path.exists(executable) else None,
+    )
     try:
         deadline = time.monotonic() + timeout_s
         while True:
@@ -59,7 +65,7 @@ def screenshots(path: str, steps: list[int], out_dir: str, timeout_s: float = 60
                 image, previous = viewer.take_screenshot(), image
             for view in viewer.get_state().views:  # what the viewer could not show, e.g. a missing pinhole
                 for report in view.reports:
-                    warnings.warn(f"step {step}, view {view.name!r}: {report.severity}: {report.summary}")
+                    warnings.warn(f"step {step}, view {view.name!r}: {report.severity}: {report.summary}", stacklevel=2)
             png = os.path.abspath(os.path.join(out_dir, f"{name}_step{step}.png"))
             with open(png, "wb") as f:
                 f.write(image)

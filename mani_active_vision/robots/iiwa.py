@@ -9,7 +9,6 @@ import numpy as np
 import pybullet_data
 import sapien
 import torch
-
 from mani_skill.agents.base_agent import BaseAgent, Keyframe
 from mani_skill.agents.registration import register_agent
 from mani_skill.sensors.camera import CameraConfig

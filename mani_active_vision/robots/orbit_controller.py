@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from gymnasium import spaces
-
 from mani_skill.agents.controllers.pd_joint_pos import PDJointPosController, PDJointPosControllerConfig
 
 # Kinematics of pybullet_data/kuka_iiwa/model.urdf (iiwa 14), read off its joint origins.
@@ -28,7 +27,9 @@ SHOULDER_HEIGHT = 0.36  # joint 2 above the base (0.1575 + 0.2025)
 UPPER_ARM = 0.42  # joint 2 -> joint 4 (0.2045 + 0.2155)
 FOREARM = 0.40  # joint 4 -> joint 6 (0.1845 + 0.2155)
 WRIST_TO_EE = 0.081  # joint 6 -> link 7 origin (the end effector)
-JOINT_LIMITS = np.array([2.96705972839, 2.09439510239, 2.96705972839, 2.09439510239, 2.96705972839, 2.09439510239, 3.05432619099])
+JOINT_LIMITS = np.array(
+    [2.96705972839, 2.09439510239, 2.96705972839, 2.09439510239, 2.96705972839, 2.09439510239, 3.05432619099]
+)
 
 
 def camera_forward(azimuth: torch.Tensor, pitch: float) -> torch.Tensor:
@@ -52,7 +53,9 @@ def solve_ik(ee_pos: torch.Tensor, pitch: float) -> tuple[torch.Tensor, torch.Te
     cos_elbow = (dist_sq - UPPER_ARM**2 - FOREARM**2) / (2 * UPPER_ARM * FOREARM)
     reachable = cos_elbow.abs() <= 1.0
     elbow = torch.acos(cos_elbow.clamp(-1.0, 1.0))  # >= 0: the forearm bends outward (joint 4 negative)
-    phi1 = torch.atan2(wrist_r, wrist_z) - torch.atan2(FOREARM * torch.sin(elbow), UPPER_ARM + FOREARM * torch.cos(elbow))
+    phi1 = torch.atan2(wrist_r, wrist_z) - torch.atan2(
+        FOREARM * torch.sin(elbow), UPPER_ARM + FOREARM * torch.cos(elbow)
+    )
     zero = torch.zeros_like(q1)
     qpos = torch.stack([q1, phi1, zero, -elbow, zero, phi3 - phi1 - elbow, zero], -1)
     limits = torch.as_tensor(JOINT_LIMITS, dtype=qpos.dtype, device=qpos.device) - 0.01
@@ -73,7 +76,7 @@ def forward_position(qpos: torch.Tensor) -> torch.Tensor:
 class OrbitEEPosController(PDJointPosController):
     """Delta-position control of link 7 with the orientation given by the orbit rule (see module doc)."""
 
-    config: "OrbitEEPosControllerConfig"
+    config: OrbitEEPosControllerConfig
 
     def _initialize_action_space(self):
         bound = np.full(3, self.config.max_step, dtype=np.float32)
