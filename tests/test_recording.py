@@ -175,7 +175,7 @@ def test_ctrl_c_leaves_a_valid_file(tmp_path):
     verify(path)
     rows = temporal_rows(path)
     assert rows["env0/action"] > 10
-    # record_rollouts stops between steps: every step is logged whole
+    # the episode loop stops between steps: every step is logged whole
     assert rows["world/env0/camera/image/rgb"] == rows["env0/action"] + rows["env0/target_image"]
     outcomes = column_by_step(path, "env0/outcome", "TextLog:text")
     assert "interrupted" in outcomes[max(outcomes)][0]

@@ -31,7 +31,7 @@ from mani_active_vision.segmentation_data import (
 SHIPPED_UNSEEN_IOU = 0.85
 """Shipped weights' mean target IoU on a small fresh unseen-object batch must exceed this: measured 0.928 on
 this batch (0.934 and 0.988 on two other 3-scene batches; 0.936 on the 1,000-sample unseen test split,
-README "Vision"), less a margin for the batch's small size."""
+docs/vision.md), less a margin for the batch's small size."""
 
 
 def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15)):
