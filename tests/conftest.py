@@ -4,7 +4,7 @@ import gymnasium as gym
 import pytest
 import torch
 
-import mani_active_vision  # noqa: F401  (registers the task)
+from mani_active_vision.envs import EnvConfig
 
 torch.set_num_threads(1)
 
@@ -12,13 +12,9 @@ _ENVS = {}
 
 
 def cached_task(**kwargs):
-    """A cached `ActiveVisionFind-v0` at 64² (small and fast); callers must reset it themselves."""
-    kwargs = {
-        "obs_mode": "rgb+segmentation",
-        "render_backend": "cpu",
-        "sensor_configs": dict(hand_camera=dict(width=64, height=64)),
-        **kwargs,
-    }
+    """A cached raw `ActiveVisionFind-v0` (the default `EnvConfig`'s task: 64², small and fast) with the
+    task's keyword arguments `kwargs` on top; callers must reset it themselves."""
+    kwargs = {**EnvConfig().task_kwargs(), **kwargs}
     key = repr(sorted(kwargs.items()))
     if key not in _ENVS:
         _ENVS[key] = gym.make("ActiveVisionFind-v0", **kwargs)

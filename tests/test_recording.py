@@ -18,6 +18,7 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
+from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
 from mani_active_vision.recording import RerunRecorder, RerunVectorRecorder, blueprint
 from mani_active_vision.recording.screenshots import screenshots
 
@@ -34,15 +35,7 @@ def strict_mode():
 
 def fresh_env():
     # Not the cached conftest env: closing the recorder closes the env it wraps.
-    return mav.DiscreteDirections(
-        gym.make(
-            "ActiveVisionFind-v0",
-            obs_mode="rgb+segmentation",
-            render_backend="cpu",
-            start_pose="search",
-            sensor_configs=dict(hand_camera=dict(width=64, height=64)),
-        )
-    )
+    return make_env(EnvConfig(start_pose="search", box_source="none"))
 
 
 def verify(path):
@@ -201,14 +194,7 @@ def test_vector_env_with_autoreset_is_recorded_per_env(tmp_path):
     def make():
         return CPUGymWrapper(
             mav.DiscreteDirections(
-                gym.make(
-                    "ActiveVisionFind-v0",
-                    obs_mode="rgb+segmentation",
-                    render_backend="cpu",
-                    start_pose="search",
-                    max_episode_steps=4,
-                    sensor_configs=dict(hand_camera=dict(width=64, height=64)),
-                )
+                gym.make(ENV_ID, **EnvConfig(start_pose="search", max_episode_steps=4).task_kwargs())
             )
         )
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mani_active_vision as mav
-from mani_active_vision.envs import EnvConfig
+from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.vec_env import CPUVectorEnv, WorkerCrashedError, make_vec_env
 
 
@@ -99,7 +99,7 @@ def test_error_in_a_worker_reaches_the_parent():
 
 
 def test_a_direction_index_without_discrete_directions_says_what_to_do():
-    env = make_vec_env("ActiveVisionFind-v0", 1, sensor_configs=dict(hand_camera=dict(width=32, height=32)))
+    env = make_vec_env(ENV_ID, 1, **EnvConfig(image_size=32).task_kwargs())  # any env id: no DiscreteDirections
     try:
         env.reset(seed=0)
         with pytest.raises(

@@ -11,18 +11,11 @@ from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
+from mani_active_vision.envs import ENV_ID, EnvConfig
 
 
 def _cpu_env(**kwargs):
-    return CPUGymWrapper(
-        gym.make(
-            "ActiveVisionFind-v0",
-            render_backend="cpu",
-            start_pose="search",
-            sensor_configs=dict(hand_camera=dict(width=32, height=32)),
-            **kwargs,
-        )
-    )
+    return CPUGymWrapper(gym.make(ENV_ID, **{**EnvConfig(start_pose="search", image_size=32).task_kwargs(), **kwargs}))
 
 
 def test_gymnasium_env_checker_passes():
