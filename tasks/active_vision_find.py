@@ -280,7 +280,7 @@ class ActiveVisionFindEnv(BaseEnv):
         """ManiSkill fails on a wrong action with a bare assertion or TypeError: say what is expected."""
         if action is None or isinstance(action, dict):
             return
-        shape = tuple(np.shape(action.cpu() if isinstance(action, torch.Tensor) else action))
+        shape = tuple(action.shape) if hasattr(action, "shape") else np.shape(action)  # no copy off the GPU
         single = tuple(self.single_action_space.shape)
         if shape not in (single, (self.num_envs, *single)):
             expected = f"{single} or {(1, *single)}" if self.num_envs == 1 else f"{(self.num_envs, *single)}"
