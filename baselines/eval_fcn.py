@@ -7,8 +7,11 @@ Columns: pixel accuracy (all samples); target IoU, mean per sample over samples 
 the model marks any pixel; box error = mean |Δ| of the normalised (x, y, w, h) box on samples with the
 target; miss rate = share of those where the mask is empty. IoU (≥1%): target IoU over samples where the
 target covers at least 1% of the image (the sizes control works with; tiny far-away targets of a few
-pixels are where per-sample IoU is lowest). A second table splits the target IoU by the target's share of
-the image.
+pixels are where per-sample IoU is lowest); IoU (≥20 px): over samples with at least 20 target pixels. A
+second table splits the target IoU by the target's share of the image. Rollout-frame sets
+(`baselines/collect_rollout_frames.py`) also get a table of what the false positives on target-absent
+frames lie on (an identical twin, a same-shape or same-colour distractor, another object, floor, robot)
+and the same metrics per source policy.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import torch
 import tyro
 
 from mani_active_vision.agents.fcn import WEIGHTS_PATH, dataset_counts, load_checkpoint, summarize_counts
+from mani_active_vision.evaluation.rollout_frames import SOURCES, attribute_false_positives
 from mani_active_vision.segmentation_data import load_segmentation_data
 
 
@@ -96,6 +100,43 @@ def model_sized(images: np.ndarray, side: int) -> np.ndarray:
     return images[:, rows][:, :, cols]
 
 
+def rollout_tables(model, data: dict, counts: dict, name: str, largest_component: bool) -> list[str]:
+    """For a rollout-frame set: what the false positives on target-absent frames lie on, and the metrics
+    per source policy."""
+    absent = np.flatnonzero(~data["mask"].any((1, 2)))
+    pred = np.zeros(data["mask"].shape, bool)
+    for i in range(0, len(absent), 64):
+        rows = absent[i : i + 64]
+        pred[rows] = model.predict(data["scene"][rows], data["target"][rows], largest_component).numpy()
+    kinds = attribute_false_positives(pred, data)
+    lines = [
+        "",
+        f"{name}: what the false positives lie on ({len(absent)} frames without the target; share of them):",
+        "",
+        "| " + " | ".join(kinds) + " | any |",
+        "|" + "---|" * (len(kinds) + 1),
+        "| " + " | ".join(f"{v / max(len(absent), 1):.3f} ({v})" for v in kinds.values()) + f" | "
+        f"{sum(kinds.values()) / max(len(absent), 1):.3f} |",
+        "",
+        f"{name} by source policy:",
+        "",
+        "| source | frames (with target) | target IoU | IoU (≥20 px) | FP rate (absent) | box error |",
+        "|---|---|---|---|---|---|",
+    ]
+    for index, source in enumerate(SOURCES):
+        sel = torch.from_numpy(data["source"] == index)
+        if not sel.any():
+            continue
+        part = {k: v[sel] for k, v in counts.items()}
+        m = summarize_counts(part)
+        m20 = summarize_counts({k: v[part["true"] >= 20] for k, v in part.items()})
+        lines.append(
+            f"| {source} | {int(sel.sum())} ({m['samples_with_target']}) | {m['target_iou']:.3f} | "
+            f"{m20['target_iou']:.3f} | {m['false_positive_rate']:.3f} | {m['box_error']:.3f} |"
+        )
+    return lines
+
+
 def main(args: Args):
     torch.set_num_threads(1)
     weights = args.weights or WEIGHTS_PATH
@@ -104,9 +145,10 @@ def main(args: Args):
         f"FCN `{weights}` (trained at {model.config.image_size}², epoch {checkpoint.get('epoch')})"
         + (", largest connected component kept" if args.largest_component else ""),
         "",
-        "| data set | objects | size | samples (with target) | pixel acc | target IoU | pooled IoU | FP rate (absent) | box error | miss rate | IoU (target ≥1%) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| data set | objects | size | samples (with target) | pixel acc | target IoU | pooled IoU | FP rate (absent) | box error | miss rate | IoU (target ≥1%) | IoU (≥20 px) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    attribution = []
     bins = list(zip(SIZE_BINS[:-1], SIZE_BINS[1:]))
     by_size = [
         "",
@@ -127,10 +169,12 @@ def main(args: Args):
         datasets[data_dir], all_counts[data_dir] = data, counts
         large = counts["true"] >= 0.01 * counts["pixels"]
         metrics["target_iou_large"] = summarize_counts({k: v[large] for k, v in counts.items()})["target_iou"]
+        visible = counts["true"] >= 20
+        metrics["target_iou_20px"] = summarize_counts({k: v[visible] for k, v in counts.items()})["target_iou"]
         n = metrics["samples_with_target"] + metrics["samples_without_target"]
         values = " | ".join(
             f"{metrics[c]:.4f}" if c == "pixel_accuracy" else f"{metrics[c]:.3f}"
-            for c in COLUMNS + ("target_iou_large",)
+            for c in COLUMNS + ("target_iou_large", "target_iou_20px")
         )
         lines.append(
             f"| {data_dir} | {config['object_set']} | {config['image_size']}² | {n} ({metrics['samples_with_target']}) | {values} |"
@@ -142,8 +186,10 @@ def main(args: Args):
             iou = summarize_counts({k: v[sel] for k, v in counts.items()})["target_iou"]
             cells.append(f"{iou:.3f} ({int(sel.sum())})" if sel.any() else "–")
         by_size.append(f"| {data_dir} | " + " | ".join(cells) + " |")
+        if "objects" in data:
+            attribution += rollout_tables(model, data, counts, data_dir, args.largest_component)
         print(f"{data_dir}: {json.dumps(metrics)} ({time.time() - started:.0f} s)")
-    table = "\n".join(lines + by_size)
+    table = "\n".join(lines + by_size + attribution)
     print(table)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:

@@ -177,7 +177,7 @@ class ActiveVisionFindEnv(BaseEnv):
         self.ground = build_ground(self.scene)
         models = object_set(self.object_set)
         slots = [[] for _ in range(self.num_objects)]
-        copies, bottoms, self.object_names = [], [], []
+        copies, bottoms, self.object_names, self.object_colors = [], [], [], []
         for env in range(self.num_envs):
             rng = (
                 np.random.RandomState(self.fixed_scene_seed)
@@ -205,6 +205,7 @@ class ActiveVisionFindEnv(BaseEnv):
             copies.append(copy)
             bottoms.append(env_bottoms)
             self.object_names.append([m.name for m in chosen])
+            self.object_colors.append([tuple(float(c) for c in color) for color in colors])
         self.objects = [Actor.merge(actors, name=f"object_{k}") for k, actors in enumerate(slots)]
         for obj in self.objects:
             self.add_to_state_dict_registry(obj)

@@ -221,3 +221,53 @@ def test_box_state_from_fcn_and_its_last_mask():
         BoxState(cached_task(), source="yolo")
     with pytest.raises(ValueError, match="needs segmenter="):
         BoxState(cached_task(), source="fcn")
+
+
+def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives(tmp_path):
+    from mani_active_vision.evaluation.rollout_frames import (
+        FLOOR,
+        RELATIONS,
+        ROBOT,
+        RolloutFramesConfig,
+        attribute_false_positives,
+        collect_rollout_frames,
+        slot_relations,
+    )
+
+    red, blue = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
+    relations = slot_relations(["duck", "duck", "duck", "mug", "cup"], [red, red, blue, red, blue])
+    assert [RELATIONS[r] for r in relations] == [
+        "target",
+        "identical twin",
+        "same shape",
+        "same colour",
+        "other object",
+    ]
+
+    config = RolloutFramesConfig(sources=("servo_sky",), episodes_per_source=1, frame_stride=25, image_size=32)
+    manifest = collect_rollout_frames(str(tmp_path), config, progress=False)
+    data = load_segmentation_data(str(tmp_path))
+    assert manifest["num_samples"] == len(data["mask"]) == 5  # steps 0, 25, 50, 75, 100
+    assert data["scene"].shape == (5, 32, 32, 3) and data["objects"].shape == (5, 32, 32)
+    np.testing.assert_array_equal(data["mask"], data["objects"] == 1)  # slot 0, the target, is value 1
+    assert data["relations"][0, 0] == RELATIONS.index("target") and list(data["step"]) == [0, 25, 50, 75, 100]
+
+    objects = np.full((3, 4, 4), FLOOR, np.uint8)
+    objects[:, :2, :2] = 3  # slot 2 is in view
+    objects[:, 3, :] = ROBOT
+    fake = {
+        "mask": np.zeros((3, 4, 4), bool),
+        "objects": objects,
+        "relations": np.array([[0, 1, 3, 4, 4]] * 3, np.int8),
+    }  # slot 2 has the target's colour
+    pred = np.zeros((3, 4, 4), bool)
+    pred[0, :2, :2] = True  # on the same-colour distractor
+    pred[1, 3, :] = True  # on the robot
+    assert attribute_false_positives(pred, fake) == {
+        "identical twin": 0,
+        "same shape": 0,
+        "same colour": 1,
+        "other object": 0,
+        "floor": 0,
+        "robot": 1,
+    }

@@ -18,14 +18,22 @@ from mani_active_vision.metrics import Trajectory
 
 
 def run_episode(
-    env, policy, seed: int | None, max_steps: int | None = None, stop: Callable[[Trajectory], bool] | None = None
+    env,
+    policy,
+    seed: int | None,
+    max_steps: int | None = None,
+    stop: Callable[[Trajectory], bool] | None = None,
+    on_step: Callable[[object, dict], None] | None = None,
 ) -> Trajectory:
     """One episode of `policy` on env 0 from `env.reset(seed=seed)`, until it terminates or is truncated,
-    after `max_steps` steps, or when `stop(trajectory)` says so (checked after every step)."""
+    after `max_steps` steps, or when `stop(trajectory)` says so (checked after every step). `on_step(obs,
+    info)` sees every observation, the reset's included (e.g. to keep frames)."""
     obs, info = env.reset(seed=seed)
     policy.reset(obs, info)
     trajectory = Trajectory()
     trajectory.start(info)
+    if on_step is not None:
+        on_step(obs, info)
     steps = 0
     with stop_on_ctrl_c() as stop_requested:
         while max_steps is None or steps < max_steps:
@@ -33,6 +41,8 @@ def run_episode(
                 raise KeyboardInterrupt(f"stopped by Ctrl-C at step {steps} of the episode with seed {seed}")
             obs, reward, terminated, truncated, info = env.step(policy.act(obs, info))
             trajectory.append(reward, info)
+            if on_step is not None:
+                on_step(obs, info)
             steps += 1
             if bool(torch.as_tensor(terminated | truncated).reshape(-1)[0]) or (stop is not None and stop(trajectory)):
                 break

@@ -1,0 +1,176 @@
+"""Frames from rollouts of the project's policies: the distribution control acts on, to judge vision by.
+
+The FCN's own test sets are poses aimed at the target; a policy sees something else (the sweep's far,
+empty views, close-ups, look-alikes in view without the target). Each source runs a policy on the
+ground-truth box from a start pose, and every `frame_stride`-th observation is kept with:
+- `scene` (H, W, 3) uint8, `target` (h, w, 3) uint8 and `mask` (H, W) bool, as in `segmentation_data`, so
+  that `baselines/eval_fcn.py` evaluates these sets like the others;
+- `objects` (H, W) uint8: what each pixel shows: `FLOOR` (0), object slot k as k + 1 (slot 0 the target),
+  `ROBOT`; and `relations` (max objects,) int8: each slot's relation to the target (`RELATIONS`), so that a
+  false positive can be attributed to an identical twin, a same-shape or same-colour distractor, another
+  object, or the floor and the robot;
+- `source`, `scene_seed`, `step`.
+Shards + `manifest.json` in the layout of `segmentation_data`; deterministic by seed (episode k of source
+j is reset with `seed + 1000 j + k`).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.rollout import run_episode
+from mani_active_vision.json_io import save_json
+
+SOURCES = {
+    "servo_sky": ("servo", "sky"),
+    "explore_servo_sky": ("explore", "sky"),
+    "random_sky": ("random", "sky"),
+    "random_search": ("random", "search"),
+}
+"""source name -> (policy, start pose): the scripted servo, the paper's exploration handing over to it, and
+random directions from both start poses (all on the ground-truth box)."""
+RELATIONS = ("target", "identical twin", "same shape", "same colour", "other object")
+FLOOR, ROBOT = 0, 255
+
+
+@dataclass(frozen=True)
+class RolloutFramesConfig:
+    object_set: str = "unseen"
+    """objects of the episodes (held-out: unseen)"""
+    episodes_per_source: int = 20
+    """episodes of each source"""
+    frame_stride: int = 4
+    """keep every n-th observation of an episode (the reset's included)"""
+    image_size: int = 128
+    """the wrist camera's side"""
+    seed: int = 400_000
+    """episode k of source j is reset with seed + 1000 j + k (held out: no FCN or DQN seed is here)"""
+    sources: tuple[str, ...] = tuple(SOURCES)
+    """which of SOURCES to run"""
+
+    def __post_init__(self):
+        unknown = [s for s in self.sources if s not in SOURCES]
+        if unknown:
+            raise ValueError(f"sources {unknown} are not in: {', '.join(SOURCES)}")
+        if self.frame_stride < 1 or self.episodes_per_source < 1:
+            raise ValueError("frame_stride and episodes_per_source must be at least 1")
+
+
+def slot_relations(names: list[str], colors: list[tuple]) -> np.ndarray:
+    """Each object slot's index in RELATIONS: slot 0 is the target; a distractor of the same model and colour
+    is its identical twin; else same shape (model), same colour, or another object."""
+    relations = []
+    for k, (name, color) in enumerate(zip(names, colors)):
+        same_shape, same_color = name == names[0], np.allclose(color, colors[0])
+        if k == 0:
+            relations.append("target")
+        elif same_shape and same_color:
+            relations.append("identical twin")
+        else:
+            relations.append("same shape" if same_shape else "same colour" if same_color else "other object")
+    return np.array([RELATIONS.index(r) for r in relations], np.int8)
+
+
+def object_map(base, segmentation: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 of what each pixel of env 0's segmentation shows: FLOOR, slot k + 1, or ROBOT."""
+    lookup = np.zeros(int(segmentation.max()) + 1, np.uint8)
+    for seg_id, thing in base.segmentation_id_map.items():
+        if type(thing).__name__ == "Link" and seg_id < len(lookup):
+            lookup[seg_id] = ROBOT
+    for k, obj in enumerate(base.objects):
+        seg_id = int(obj.per_scene_id[0])
+        if seg_id < len(lookup):
+            lookup[seg_id] = k + 1
+    return lookup[segmentation]
+
+
+def record_episode(env, policy, seed: int, stride: int, source: int) -> dict[str, np.ndarray]:
+    """Run one episode and keep every `stride`-th frame (see the module docstring)."""
+    base, frames = env.unwrapped, []
+    run_episode(env, policy, seed, on_step=lambda obs, info: frames.append(env.last_observation))
+    frames = frames[::stride]
+    relations = np.full(base.max_objects, -1, np.int8)
+    relations[: base.num_objects] = slot_relations(base.object_names[0], base.object_colors[0])
+    target_id = int(base.target_seg_id[0])
+    scene, target, mask, objects = [], [], [], []
+    for raw in frames:
+        camera = raw["sensor_data"]["hand_camera"]
+        segmentation = camera["segmentation"][0, ..., 0].cpu().numpy()
+        scene.append(camera["rgb"][0].cpu().numpy())
+        target.append(raw["extra"]["target_image"][0].cpu().numpy())
+        mask.append(segmentation == target_id)
+        objects.append(object_map(base, segmentation))
+    n = len(frames)
+    return dict(
+        scene=np.stack(scene),
+        target=np.stack(target),
+        mask=np.stack(mask),
+        objects=np.stack(objects),
+        relations=np.repeat(relations[None], n, 0),
+        source=np.full(n, source, np.int8),
+        scene_seed=np.full(n, seed, np.int64),
+        step=np.arange(n, dtype=np.int16) * stride,
+    )
+
+
+def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: bool = True) -> dict:
+    """Render the rollout-frame set into `out_dir` (one shard per source + manifest.json); returns the manifest."""
+    os.makedirs(out_dir, exist_ok=True)
+    start, shards = time.time(), []
+    for j, name in enumerate(config.sources):
+        policy_name, start_pose = SOURCES[name]
+        source = list(SOURCES).index(name)
+        env = make_env(EnvConfig(object_set=config.object_set, start_pose=start_pose, image_size=config.image_size))
+        try:
+            policy = make_policy(policy_name, env, **({"then": "servo"} if policy_name == "explore" else {}))
+            parts = []
+            seeds = [config.seed + 1000 * source + k for k in range(config.episodes_per_source)]
+            for seed in tqdm(seeds, desc=f"frames {name}", disable=not progress):
+                parts.append(record_episode(env, policy, seed, config.frame_stride, source))
+        finally:
+            env.close()
+        shard = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+        file = f"shard_{j:05d}.npz"
+        np.savez_compressed(os.path.join(out_dir, file), **shard)
+        shards.append(
+            dict(
+                file=file, num_samples=len(shard["mask"]), source=name, with_target=int(shard["mask"].any((1, 2)).sum())
+            )
+        )
+    num_samples = sum(s["num_samples"] for s in shards)
+    manifest = dict(
+        config={**asdict(config), "kind": "rollout_frames"},
+        shards=[dict(file=s["file"], num_samples=s["num_samples"], source=s["source"]) for s in shards],
+        num_samples=num_samples,
+        share_with_target=sum(s["with_target"] for s in shards) / max(num_samples, 1),
+        sources=list(SOURCES),
+        relations=list(RELATIONS),
+        seconds=round(time.time() - start, 1),
+    )
+    save_json(manifest, os.path.join(out_dir, "manifest.json"))
+    return manifest
+
+
+def attribute_false_positives(pred: np.ndarray, data: dict) -> dict[str, int]:
+    """On frames without the target where a mask `pred` (N, H, W) bool marks something: what the marked pixels
+    mostly show (a distractor's relation to the target, "floor" or "robot"); counts per kind."""
+    kinds = [*RELATIONS[1:], "floor", "robot"]
+    counts = dict.fromkeys(kinds, 0)
+    absent = ~data["mask"].any((1, 2))
+    for i in np.flatnonzero(absent & pred.any((1, 2))):
+        values, hits = np.unique(data["objects"][i][pred[i]], return_counts=True)
+        value = int(values[hits.argmax()])
+        if value == FLOOR:
+            counts["floor"] += 1
+        elif value == ROBOT:
+            counts["robot"] += 1
+        else:
+            counts[RELATIONS[int(data["relations"][i][value - 1])]] += 1
+    return counts
