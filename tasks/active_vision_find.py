@@ -9,8 +9,8 @@ vertical axis, 60° down, horizon level), so `pd_ee_delta_pos` moves it around t
 
 **Randomizations:**
 - `num_objects` objects from `object_set` (train / unseen / primitives), largest extent 7-10 cm; slot 0
-  is the target. Some distractors take the target's colour, some its shape, so colour alone does not
-  solve segmentation. A new draw on every reset when `num_envs == 1` (ManiSkill's reconfiguration).
+  is the target. Some distractors take the target's colour, some its shape (in another colour), so colour
+  alone does not solve segmentation and no distractor is an identical twin of the target. A new draw on every reset when `num_envs == 1` (ManiSkill's reconfiguration).
 - `placement="random"`: objects 0.70-0.90 m from the base, within ±155° of azimuth (behind the robot is a
   wedge the camera cannot centre), at least 0.15 m apart, random yaw. `"fixed"`: the same scene every
   episode (the paper's first experiment).
@@ -188,9 +188,10 @@ class ActiveVisionFindEnv(BaseEnv):
             chosen = [models[i] for i in picks]
             colors = [m.color for m in chosen]
             for k in range(1, self.num_objects):  # distractors that look like the target
-                if rng.rand() < self.same_shape_prob:
+                if rng.rand() < self.same_shape_prob:  # ... in another colour: never an identical twin
                     chosen[k] = chosen[0]
-                    colors[k] = PALETTE[rng.randint(len(PALETTE))]
+                    others = [c for c in PALETTE if not np.allclose(c, colors[0])]
+                    colors[k] = others[rng.randint(len(others))]
                 elif rng.rand() < self.same_color_prob:
                     colors[k] = colors[0]
             sizes = rng.uniform(*OBJECT_SIZE, size=self.num_objects)
