@@ -391,9 +391,8 @@ PRESETS = {
 }
 
 if __name__ == "__main__":
-    from mani_active_vision.evaluation.report import (
-        plot_curves,
-    )  # the script's plot; training itself imports no plotting
+    # the command line's learning curve; train() itself imports no plotting
+    from mani_active_vision.evaluation.report import plot_curves
 
     result = train(tyro.extras.overridable_config_cli(PRESETS))
     curve = os.path.join(result["run_dir"], "learning_curve.png")
