@@ -108,8 +108,10 @@ class CPUVectorEnv(AsyncVectorEnv):
     or raise a bare `EOFError`, then fail to close), and `close()` terminates what it cannot close."""
 
     def _dead_worker(self) -> WorkerCrashedError | None:
+        """The error of a worker that died without a last word. One that sent its answer first (gymnasium's
+        worker exits by itself after reporting an exception) is not a crash: its answer is read as usual."""
         for index, (pipe, process) in enumerate(zip(self.parent_pipes, self.processes)):
-            if pipe is not None and not process.is_alive():
+            if pipe is not None and not process.is_alive() and not _has_message(pipe):
                 self._state = type(self._state).DEFAULT
                 return WorkerCrashedError(
                     f"vector env worker {index} (pid {process.pid}) died: {_exit_reason(process.exitcode)}"
@@ -172,6 +174,13 @@ class CPUVectorEnv(AsyncVectorEnv):
                 if process.is_alive():
                     process.terminate()
                 process.join()
+
+
+def _has_message(pipe) -> bool:
+    try:
+        return not pipe.closed and pipe.poll()
+    except (OSError, EOFError):
+        return False
 
 
 def _exit_reason(exitcode: int | None) -> str:

@@ -96,6 +96,15 @@ def test_error_in_a_worker_reaches_the_parent():
         env.step(np.array([0, 7]))
     env.close()
     assert not any(p.is_alive() for p in env.processes)
+    # the same when the worker has reported and exited before the parent reads (a loaded machine's timing)
+    env = _cartpole_pool()
+    env.reset(seed=0)
+    env.step_async(np.array([0, 7]))
+    env.processes[1].join(timeout=30)
+    assert not env.processes[1].is_alive()
+    with pytest.raises(AssertionError, match="invalid"):  # not a WorkerCrashedError: it answered first
+        env.step_wait()
+    env.close()
 
 
 def test_a_direction_index_without_discrete_directions_says_what_to_do():
