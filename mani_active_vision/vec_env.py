@@ -108,10 +108,12 @@ class CPUVectorEnv(AsyncVectorEnv):
     or raise a bare `EOFError`, then fail to close), and `close()` terminates what it cannot close."""
 
     def _dead_worker(self) -> WorkerCrashedError | None:
-        """The error of a worker that died without a last word. One that sent its answer first (gymnasium's
-        worker exits by itself after reporting an exception) is not a crash: its answer is read as usual."""
+        """The error of a worker that died without a word. A worker that reported an exception exits by itself
+        (gymnasium's worker): that is not a crash, and the exception it reported is raised as usual."""
+        if not self.error_queue.empty():
+            return None
         for index, (pipe, process) in enumerate(zip(self.parent_pipes, self.processes)):
-            if pipe is not None and not process.is_alive() and not _has_message(pipe):
+            if pipe is not None and not process.is_alive():
                 self._state = type(self._state).DEFAULT
                 return WorkerCrashedError(
                     f"vector env worker {index} (pid {process.pid}) died: {_exit_reason(process.exitcode)}"
@@ -174,13 +176,6 @@ class CPUVectorEnv(AsyncVectorEnv):
                 if process.is_alive():
                     process.terminate()
                 process.join()
-
-
-def _has_message(pipe) -> bool:
-    try:
-        return not pipe.closed and pipe.poll()
-    except (OSError, EOFError):
-        return False
 
 
 def _exit_reason(exitcode: int | None) -> str:
