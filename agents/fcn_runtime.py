@@ -55,7 +55,7 @@ def build_session(model: nn.Module, scene_shape: tuple, feature_shapes: list[tup
         warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript-based exporter's notice
         warnings.simplefilter("ignore", torch.jit.TracerWarning)  # sizes are constants: one graph per input shape
         torch.onnx.export(
-            _SceneMask(model),
+            _SceneMask(model).train(model.training),  # the exporter restores the wrapper's mode, recursively
             example,
             graph,
             dynamo=False,

@@ -165,7 +165,8 @@ def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size)
     one_at_a_time = torch.cat(
         [model.predict(data["scene"][i : i + 1], data["target"][i : i + 1]) for i in range(len(plain))]
     )  # the default ("auto") runtime at batch 1, as BoxState calls it
-    assert model._runtime_cache is not None  # ... which is ONNX Runtime here
+    assert model._runtime_cache is not None and not model.training  # ... which is ONNX Runtime here, throughout
+    assert len(model._runtime_cache[1]) == 1  # one graph for all the frames
     batched = model.predict(data["scene"], data["target"], runtime="onnxruntime")
     for fast in (one_at_a_time, batched):
         _assert_masks_agree(fast, plain, margin)
