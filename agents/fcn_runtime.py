@@ -45,9 +45,9 @@ class _SceneMask(nn.Module):
         return self.model.scene_mask(scene, list(target_features))
 
 
-def build_session(model: nn.Module, scene_shape: tuple, feature_shapes: list[tuple], threads: int):
-    """An ONNX Runtime session of `model.scene_mask` for uint8 scenes of `scene_shape` (N, H, W, 3) and target
-    features of `feature_shapes`, the batch size left free, on `threads` intra-op threads."""
+def export_graph(model: nn.Module, scene_shape: tuple, feature_shapes: list[tuple], free_batch: bool = True) -> bytes:
+    """The ONNX graph of `model.scene_mask` for uint8 scenes of `scene_shape` (N, H, W, 3) and target features
+    of `feature_shapes`, with the model's current weights; with `free_batch`, for any batch size."""
     names = [f"target_features_{i}" for i in range(len(feature_shapes))]
     example = (torch.zeros(scene_shape, dtype=torch.uint8), *(torch.zeros(shape) for shape in feature_shapes))
     graph = io.BytesIO()
@@ -61,13 +61,25 @@ def build_session(model: nn.Module, scene_shape: tuple, feature_shapes: list[tup
             dynamo=False,
             input_names=["scene", *names],
             output_names=["mask"],
-            dynamic_axes={name: {0: "batch"} for name in ["scene", *names, "mask"]},
+            dynamic_axes={name: {0: "batch"} for name in ["scene", *names, "mask"]} if free_batch else None,
         )
+    return graph.getvalue()
+
+
+def session_options(threads: int):
+    """ONNX Runtime's options for `predict`: `threads` intra-op threads, all graph optimisations (convolution
+    + activation fusion among them), no busy-waiting (the cores are shared)."""
     options = onnxruntime.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # no busy-waiting on shared cores
-    return onnxruntime.InferenceSession(graph.getvalue(), options, providers=["CPUExecutionProvider"])
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    return options
+
+
+def build_session(model: nn.Module, scene_shape: tuple, feature_shapes: list[tuple], threads: int):
+    """An ONNX Runtime session of `export_graph(model, scene_shape, feature_shapes)` on `threads` threads."""
+    graph = export_graph(model, scene_shape, feature_shapes)
+    return onnxruntime.InferenceSession(graph, session_options(threads), providers=["CPUExecutionProvider"])
 
 
 def scene_mask(
