@@ -6,7 +6,7 @@ out, largest component kept, as BoxState calls it), with only the scene's networ
 in alternating blocks of calls (each sees the same load); medians and minima, with the load average.
 
   python baselines/fcn_latency_options.py              # the options and the non-network parts
-  python baselines/fcn_latency_options.py --profile    # + the torch path per layer, ONNX Runtime per node
+  python baselines/fcn_latency_options.py --profile    # + torch's layers timed alone, ONNX Runtime per node
   python baselines/fcn_latency_options.py --compile    # + torch.compile (about a minute to compile)
 """
 
@@ -26,7 +26,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 import tyro
-from torch.profiler import ProfilerActivity, profile, record_function
+from torch.profiler import ProfilerActivity, profile
 
 from mani_active_vision.agents import fcn_runtime
 from mani_active_vision.agents.fcn import load_pretrained, normalize_images, uint8_images
@@ -41,7 +41,7 @@ class Args:
     repeats: int = 300
     """timed calls per option, in blocks of 10"""
     profile: bool = False
-    """also profile the torch path per layer and ONNX Runtime per node"""
+    """also time the torch path's layers alone and profile the ONNX Runtime graph per node"""
     compile: bool = False
     """also time torch.compile (inductor; compiling takes about a minute here)"""
 
@@ -108,44 +108,32 @@ def print_table(title: str, times: dict[str, np.ndarray], baseline: str | None =
         print(f"| {name} | {np.median(t):.3f} | {t.min():.3f} |{ratio}")
 
 
-def label_layers(model: nn.Module) -> None:
-    """Name each convolution's time in the profiler after its module (`layer encoder.0.0.0`, ...)."""
+def profile_torch(model, scene, target) -> None:
+    """Each convolution of `predict(runtime="torch")` timed alone on its own input (no profiler overhead), with
+    the torch kernel that does its work (the profiler's operator with the most self time)."""
+    inputs, hooks = {}, []
+
+    def keep_input(module, args, name):
+        inputs[name] = (module, args[0].clone())
+
     for name, module in model.named_modules():
         if isinstance(module, (nn.Conv2d, nn.ConvTranspose2d)):
-
-            def enter(m, _, name=name):
-                m._record = record_function(f"layer {name}")
-                m._record.__enter__()
-
-            module.register_forward_pre_hook(enter)
-            module.register_forward_hook(lambda m, _, __: m._record.__exit__(None, None, None))
-
-
-def profile_torch(model, scene, target, calls: int = 200) -> None:
-    """Per-layer and per-operator time of `predict(runtime="torch")`, and what no torch operator accounts for."""
-    model = copy.deepcopy(model)
-    label_layers(model)
-    for _ in range(20):
-        model.predict(scene, target, largest_component=True, runtime="torch")
-    start = time.perf_counter()
-    with profile(activities=[ProfilerActivity.CPU]) as prof:
-        for _ in range(calls):
-            model.predict(scene, target, largest_component=True, runtime="torch")
-    wall = 1000 * (time.perf_counter() - start) / calls
-    events = prof.key_averages()
-    print(f"\ntorch path, profiled: {wall:.3f} ms per call (the profiler adds its own overhead)\n")
-    print("| what | ms per call (CPU total) | calls per predict |")
-    print("|---|---|---|")
-    layers = sorted((e for e in events if e.key.startswith("layer ")), key=lambda e: -e.cpu_time_total)
-    for e in layers:
-        print(f"| {e.key} | {e.cpu_time_total / 1000 / calls:.3f} | {e.count // calls} |")
-    ops = [e for e in events if e.key.startswith("aten::") and "conv" not in e.key]
-    top_ops = sorted(ops, key=lambda e: -e.self_cpu_time_total)[:8]
-    for e in top_ops:
-        print(f"| {e.key} (self) | {e.self_cpu_time_total / 1000 / calls:.3f} | {e.count // calls} |")
-    torch_ops = sum(e.self_cpu_time_total for e in events if e.key.startswith("aten::")) / 1000 / calls
-    print(f"| all torch operators (self) | {torch_ops:.3f} | |")
-    print(f"| the rest: Python, scipy (largest component), profiler | {wall - torch_ops:.3f} | |")
+            hooks.append(module.register_forward_pre_hook(lambda m, args, name=name: keep_input(m, args, name)))
+    model.predict(scene, target, runtime="torch")
+    for hook in hooks:
+        hook.remove()
+    times = time_interleaved({name: (lambda m=m, x=x: m(x)) for name, (m, x) in inputs.items()}, 200)
+    print(f"\ntorch path per layer, each timed alone (load average {os.getloadavg()[0]:.2f})\n")
+    print("| layer | input | ms median | ms min | torch kernel |")
+    print("|---|---|---|---|---|")
+    for name, (module, x) in sorted(inputs.items(), key=lambda kv: -np.median(times[kv[0]])):
+        with torch.inference_mode(), profile(activities=[ProfilerActivity.CPU]) as prof:
+            module(x)
+        kernel = max(prof.key_averages(), key=lambda e: e.self_cpu_time_total).key
+        t = times[name]
+        print(f"| {name} | {tuple(x.shape)} | {np.median(t):.3f} | {t.min():.3f} | {kernel} |")
+    total = sum(np.median(t) for t in times.values())
+    print(f"| all {len(times)} convolutions | | {total:.3f} | {sum(t.min() for t in times.values()):.3f} | |")
 
 
 def profile_onnxruntime(model, scene, target, calls: int = 200) -> None:
