@@ -16,7 +16,7 @@ was trained at (`config.image_size`) is resized to it and the scores are resized
 mask always has the scene's size. The target image is resized to `config.target_size` likewise. The
 target's features are computed once per target image and reused while it and the weights stay the same.
 On the CPU, `predict` runs the scene's part through ONNX Runtime (`fcn_runtime`: the graph exported from
-this module's current weights, ~2.5x faster one frame at a time); `runtime="torch"` runs the model eagerly.
+this module's current weights, 2-4x faster one frame at a time); `runtime="torch"` runs the model eagerly.
 """
 
 from __future__ import annotations
@@ -167,7 +167,7 @@ class OneShotFCN(nn.Module):
         with `largest_component`, only each mask's largest connected region is kept (`boxes.largest_component`).
 
         `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graph exported from the current
-        weights (`fcn_runtime`: ~2.5x faster at batch 1, masks equal up to float rounding); "auto" (default)
+        weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float rounding); "auto" (default)
         is "onnxruntime" for a model in eval mode on the CPU when it is installed, else "torch"."""
         if runtime not in RUNTIMES:
             raise ValueError(f"runtime {runtime!r} is not one of: {', '.join(RUNTIMES)}")

@@ -2,7 +2,7 @@
 
 An episode segments one frame at a time, and at batch 1 eager torch spends most of the FCN's time in
 per-layer overhead (14 small convolutions, several on its slow unfused path; docs/vision.md, Latency). ONNX
-Runtime's CPU kernels, with convolution + ReLU fused, run the same graph ~2.5x faster. The torch model stays
+Runtime's CPU kernels, with convolution + ReLU fused, run the same graph 2-4x faster. The torch model stays
 the source of truth: the graph is exported from `OneShotFCN.scene_mask` (the scene's part of `predict`:
 normalise, resize, segment, scores back, mask) with the model's current weights, lazily, once per input
 shape, and rebuilt when any weight changes (`OneShotFCN._weights_key`, which keys the target cache too).
