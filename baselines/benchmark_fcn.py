@@ -6,7 +6,9 @@ features once and reuses them) and a new target image at every call.
 
 The machine is shared, so timings are noisy: the runtimes are timed in alternating blocks of calls (the
 same load for both), medians and minima are printed, with the load average, and, as a reference measured
-in the same run, the env's own step time at the same frame size (rgb+segmentation).
+in the same run, the env's own step time at the same frame size (rgb+segmentation). Last, `predict` timed
+where it runs: inside the steps of the project's env with the FCN box state (`BoxState`, batch 1, random
+directions), where rendering has just filled the caches with other data.
 
   python baselines/benchmark_fcn.py                      # 128² (the env's default) and 64²
 """
@@ -26,7 +28,7 @@ import tyro
 
 import mani_active_vision  # noqa: F401  (registers the task)
 from mani_active_vision.agents.fcn import WEIGHTS_PATH, load_checkpoint
-from mani_active_vision.envs import ENV_ID, EnvConfig
+from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
 
 
 @dataclass
@@ -44,6 +46,8 @@ class Args:
     """`predict`'s runtimes to compare"""
     largest_component: bool = True
     """keep each mask's largest region, as BoxState does"""
+    episode_steps: int = 200
+    """env steps per runtime for the in-episode timing (0: skip it)"""
 
 
 def time_calls(fn, repeats: int) -> np.ndarray:
@@ -89,6 +93,41 @@ def env_step_ms(size: int, repeats: int) -> float:
     return 1000 * float(np.median(times))
 
 
+class TimedSegmenter:
+    """`model` with `predict` run on `runtime` and timed: the segmenter BoxState calls at every step."""
+
+    def __init__(self, model, runtime: str):
+        self.model, self.runtime, self.seconds = model, runtime, []
+
+    def predict(self, *args, **kwargs):
+        start = time.perf_counter()
+        mask = self.model.predict(*args, runtime=self.runtime, **kwargs)
+        self.seconds.append(time.perf_counter() - start)
+        return mask
+
+
+def in_episode_ms(model, size: int, runtimes: list[str], steps: int, block: int = 5) -> dict[str, np.ndarray]:
+    """Milliseconds per `predict` inside env steps (FCN box state, `size`², random directions), one env per
+    runtime, stepped in alternating blocks."""
+    segmenters = {r: TimedSegmenter(model, r) for r in runtimes}
+    config = EnvConfig(image_size=size, box_source="fcn", start_pose="search")
+    envs = {r: make_env(config, segmenter=segmenters[r]) for r in runtimes}
+    rng = np.random.default_rng(0)
+    for env in envs.values():
+        env.reset(seed=0)
+    for segmenter in segmenters.values():
+        segmenter.seconds.clear()  # the first call builds the ONNX Runtime graph
+    for _ in range(max(1, steps // block)):
+        for env in envs.values():
+            for _ in range(block):
+                *_, terminated, truncated, _ = env.step(int(rng.integers(6)))
+                if terminated or truncated:
+                    env.reset()
+    for env in envs.values():
+        env.close()
+    return {r: 1000 * np.array(segmenters[r].seconds) for r in runtimes}
+
+
 def main(args: Args):
     torch.set_num_threads(1)
     model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
@@ -124,6 +163,14 @@ def main(args: Args):
                 print(
                     f"| {size}² | {batch} | {runtime} | {median:.2f} | {same.min():.2f} | {np.median(new):.2f} | {new.min():.2f} | {reference:.2f} | {median / reference:.2f} |"
                 )
+    if args.episode_steps:
+        size = args.sizes[0]
+        print(
+            f"\n`predict` inside env steps, {size}², batch 1, largest component (load average {os.getloadavg()[0]:.2f})"
+        )
+        print("\n| runtime | ms per step's predict (median) | (min) |\n|---|---|---|")
+        for runtime, ms in in_episode_ms(model, size, args.runtimes, args.episode_steps).items():
+            print(f"| {runtime} | {np.median(ms):.2f} | {ms.min():.2f} |")
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
 
 
