@@ -1,10 +1,14 @@
 """FCN latency: milliseconds per wrist frame on one CPU thread, batch 1 and 8, through `predict` (uint8 in,
-bool mask out, resizing included when the frame size differs from the training size). Two cases: the same
-target image at every call (an episode: `predict` computes the target's features once and reuses them)
-and a new target image at every call.
+bool mask out, resizing included when the frame size differs from the training size), with each runtime:
+"torch" (the model run eagerly) and "onnxruntime" (the same graph exported from it, `predict`'s default on
+the CPU). Two cases: the same target image at every call (an episode: `predict` computes the target's
+features once and reuses them) and a new target image at every call.
 
-The machine is shared, so timings are noisy: medians and minima over repeats are printed, and, as a
-reference measured in the same run, the env's own step time at the same frame size (rgb+segmentation).
+The machine is shared, so timings are noisy: the runtimes are timed in alternating blocks of calls (the
+same load for both), medians and minima are printed, with the load average, and, as a reference measured
+in the same run, the env's own step time at the same frame size (rgb+segmentation). Last, `predict` timed
+where it runs: inside the steps of the project's env with the FCN box state (`BoxState`, batch 1, random
+directions), where rendering has just filled the caches with other data.
 
   python baselines/benchmark_fcn.py                      # 128² (the env's default) and 64²
 """
@@ -13,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -23,7 +28,7 @@ import tyro
 
 import mani_active_vision  # noqa: F401  (registers the task)
 from mani_active_vision.agents.fcn import WEIGHTS_PATH, load_checkpoint
-from mani_active_vision.envs import ENV_ID, EnvConfig
+from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
 
 
 @dataclass
@@ -37,6 +42,12 @@ class Args:
     """timed calls per setting (after 5 warm-up calls)"""
     env_reference: bool = True
     """also time env.step at each size (the reference)"""
+    runtimes: list[str] = field(default_factory=lambda: ["torch", "onnxruntime"])
+    """`predict`'s runtimes to compare"""
+    largest_component: bool = True
+    """keep each mask's largest region, as BoxState does"""
+    episode_steps: int = 200
+    """env steps per runtime for the in-episode timing (0: skip it)"""
 
 
 def time_calls(fn, repeats: int) -> np.ndarray:
@@ -48,6 +59,22 @@ def time_calls(fn, repeats: int) -> np.ndarray:
         fn()
         times.append(time.perf_counter() - start)
     return np.array(times)
+
+
+def time_interleaved(calls: dict, repeats: int, block: int = 5) -> dict[str, np.ndarray]:
+    """Seconds per call of each of `calls`, timed in alternating blocks of `block` calls so that each sees
+    the same machine load."""
+    times = {name: [] for name in calls}
+    for fn in calls.values():
+        for _ in range(5):
+            fn()
+    for _ in range(max(1, repeats // block)):
+        for name, fn in calls.items():
+            for _ in range(block):
+                start = time.perf_counter()
+                fn()
+                times[name].append(time.perf_counter() - start)
+    return {name: np.array(t) for name, t in times.items()}
 
 
 def alternate(*calls):
@@ -66,17 +93,53 @@ def env_step_ms(size: int, repeats: int) -> float:
     return 1000 * float(np.median(times))
 
 
+class TimedSegmenter:
+    """`model` with `predict` run on `runtime` and timed: the segmenter BoxState calls at every step."""
+
+    def __init__(self, model, runtime: str):
+        self.model, self.runtime, self.seconds = model, runtime, []
+
+    def predict(self, *args, **kwargs):
+        start = time.perf_counter()
+        mask = self.model.predict(*args, runtime=self.runtime, **kwargs)
+        self.seconds.append(time.perf_counter() - start)
+        return mask
+
+
+def in_episode_ms(model, size: int, runtimes: list[str], steps: int, block: int = 5) -> dict[str, np.ndarray]:
+    """Milliseconds per `predict` inside env steps (FCN box state, `size`², random directions), one env per
+    runtime, stepped in alternating blocks."""
+    segmenters = {r: TimedSegmenter(model, r) for r in runtimes}
+    config = EnvConfig(image_size=size, box_source="fcn", start_pose="search")
+    envs = {r: make_env(config, segmenter=segmenters[r]) for r in runtimes}
+    rng = np.random.default_rng(0)
+    for env in envs.values():
+        env.reset(seed=0)
+    for segmenter in segmenters.values():
+        segmenter.seconds.clear()  # the first call builds the ONNX Runtime graph
+    for _ in range(max(1, steps // block)):
+        for env in envs.values():
+            for _ in range(block):
+                *_, terminated, truncated, _ = env.step(int(rng.integers(6)))
+                if terminated or truncated:
+                    env.reset()
+    for env in envs.values():
+        env.close()
+    return {r: 1000 * np.array(segmenters[r].seconds) for r in runtimes}
+
+
 def main(args: Args):
     torch.set_num_threads(1)
     model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
     rng = np.random.default_rng(0)
     print(
-        f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}"
+        f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}; largest_component: {args.largest_component}"
     )
+    print(f"load average at start: {os.getloadavg()[0]:.2f}")
     print(
-        "| frame | batch | ms/frame, same target (median) | (min) | ms/frame, new target (median) | (min) | env step ms (median, reference) | FCN same target / env step |"
+        "| frame | batch | runtime | ms/frame, same target (median) | (min) | ms/frame, new target (median) | (min) | env step ms (median, reference) | FCN same target / env step |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes:
         reference = env_step_ms(size, args.repeats) if args.env_reference else float("nan")
         for batch in args.batch_sizes:
@@ -84,14 +147,31 @@ def main(args: Args):
             targets = rng.integers(
                 0, 256, (2, batch, model.config.target_size, model.config.target_size, 3), dtype=np.uint8
             )
-            same_target = functools.partial(model.predict, scene, targets[0])
-            same = 1000 * time_calls(same_target, args.repeats) / batch
-            new_target = alternate(*(functools.partial(model.predict, scene, target) for target in targets))
-            new = 1000 * time_calls(new_target, args.repeats) / batch
-            median = float(np.median(same))
-            print(
-                f"| {size}² | {batch} | {median:.2f} | {same.min():.2f} | {np.median(new):.2f} | {new.min():.2f} | {reference:.2f} | {median / reference:.2f} |"
-            )
+            predict = functools.partial(model.predict, largest_component=args.largest_component)
+            same_target = {r: functools.partial(predict, scene, targets[0], runtime=r) for r in args.runtimes}
+            new_target = {
+                r: alternate(*(functools.partial(predict, scene, t, runtime=r) for t in targets)) for r in args.runtimes
+            }  # timed apart from same_target, whose calls would otherwise find the cache holding the other target
+            times = {
+                (r, case): 1000 * t / batch
+                for case, calls in (("same", same_target), ("new", new_target))
+                for r, t in time_interleaved(calls, args.repeats).items()
+            }
+            for runtime in args.runtimes:
+                same, new = times[runtime, "same"], times[runtime, "new"]
+                median = float(np.median(same))
+                print(
+                    f"| {size}² | {batch} | {runtime} | {median:.2f} | {same.min():.2f} | {np.median(new):.2f} | {new.min():.2f} | {reference:.2f} | {median / reference:.2f} |"
+                )
+    if args.episode_steps:
+        size = args.sizes[0]
+        print(
+            f"\n`predict` inside env steps, {size}², batch 1, largest component (load average {os.getloadavg()[0]:.2f})"
+        )
+        print("\n| runtime | ms per step's predict (median) | (min) |\n|---|---|---|")
+        for runtime, ms in in_episode_ms(model, size, args.runtimes, args.episode_steps).items():
+            print(f"| {runtime} | {np.median(ms):.2f} | {ms.min():.2f} |")
+    print(f"load average at end: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

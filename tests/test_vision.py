@@ -1,8 +1,12 @@
 """The one-shot segmentation FCN, its data, its shipped weights and the box state built on it."""
 
+import copy
+import warnings
+
 import numpy as np
 import pytest
 import torch
+import torch.nn as nn
 import torch.nn.functional as F
 from conftest import cached_task
 
@@ -21,6 +25,7 @@ from mani_active_vision.agents.fcn import (
     summarize_counts,
 )
 from mani_active_vision.box_state import BoxState
+from mani_active_vision.envs import EnvConfig
 from mani_active_vision.segmentation_data import (
     SegmentationDataConfig,
     collect_segmentation_data,
@@ -34,9 +39,11 @@ this batch (0.934 and 0.988 on two other 3-scene batches; 0.936 on the 1,000-sam
 docs/vision.md), less a margin for the batch's small size."""
 
 
-def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15)):
-    config = SegmentationDataConfig(object_set=object_set, views_per_scene=views, view_mode_probs=mode_probs)
-    env = cached_task(object_set=object_set)
+def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15), image_size=64):
+    config = SegmentationDataConfig(
+        object_set=object_set, views_per_scene=views, view_mode_probs=mode_probs, image_size=image_size
+    )
+    env = cached_task(**EnvConfig(object_set=object_set, image_size=image_size).task_kwargs())
     parts = [render_scene_views(env, seed, np.random.default_rng([0, seed]), config) for seed in scenes]
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
@@ -129,6 +136,98 @@ def test_shipped_weights_segment_unseen_objects():
     )
     assert metrics["samples_with_target"] >= 10
     assert metrics["target_iou"] > SHIPPED_UNSEEN_IOU, metrics
+
+
+def _torch_margin(model, scene, target):
+    """Score margin (target - background) of the torch model at the scene's size, as `predict` computes it."""
+    with torch.inference_mode():
+        scores = model.scene_scores(torch.as_tensor(scene), model.target_features(images_to_input(target)))
+    return scores[:, 1] - scores[:, 0]
+
+
+def _assert_masks_agree(fast, plain, margin):
+    """ONNX Runtime's kernels sum in another order than torch's (scores differ by ~1e-5), so a mask may differ
+    only where the torch model's score margin is that small, and on at most 0.1% of the pixels."""
+    differ = fast != plain
+    assert fast.shape == plain.shape and fast.dtype == torch.bool
+    assert differ.float().mean() <= 1e-3, int(differ.sum())
+    assert (margin[differ].abs() < 1e-3).all(), margin[differ]
+
+
+@pytest.mark.parametrize("image_size", [64, 128])
+def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size):
+    model = load_pretrained()
+    data = _render("unseen", scenes=(900004, 900005), views=6, mode_probs=(0.65, 0.2, 0.15), image_size=image_size)
+    plain = model.predict(data["scene"], data["target"], runtime="torch")
+    margin = _torch_margin(model, data["scene"], data["target"])
+    assert torch.equal(plain, margin > 0)
+    assert plain.any((1, 2)).sum() >= 4 and (~plain).any()  # real masks: target pixels and background
+    one_at_a_time = torch.cat(
+        [model.predict(data["scene"][i : i + 1], data["target"][i : i + 1]) for i in range(len(plain))]
+    )  # the default ("auto") runtime at batch 1, as BoxState calls it
+    assert model._runtime_cache is not None and not model.training  # ... which is ONNX Runtime here, throughout
+    assert len(model._runtime_cache[1]) == 1  # one graph for all the frames
+    batched = model.predict(data["scene"], data["target"], runtime="onnxruntime")
+    for fast in (one_at_a_time, batched):
+        _assert_masks_agree(fast, plain, margin)
+
+
+def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
+    torch.manual_seed(0)
+    model = load_pretrained()
+    data = _render(scenes=(4,), views=2, mode_probs=(1.0, 0.0, 0.0))
+    scene, target = data["scene"], data["target"]
+
+    def fast_mask():  # ONNX Runtime's mask, checked against the torch model's current weights
+        fast = model.predict(scene, target, runtime="onnxruntime")
+        _assert_masks_agree(fast, model.predict(scene, target, runtime="torch"), _torch_margin(model, scene, target))
+        return fast, next(iter(model._runtime_cache[1].values()))
+
+    def optimiser_step():  # in place
+        with torch.no_grad():
+            for p in model.parameters():
+                p.add_(0.05 * torch.randn_like(p))
+
+    def swapped_classes():  # the head's two class rows swapped: the mask turns inside out
+        return {k: v.flip(0) if k.startswith("head.") else v for k, v in model.state_dict().items()}
+
+    first, session = fast_mask()
+    assert fast_mask()[1] is session  # same weights, same shape: the graph is reused
+    masks = [first]
+    for change in (
+        optimiser_step,
+        lambda: model.load_state_dict(swapped_classes()),
+        lambda: setattr(model, "head", nn.Conv2d(8, 2, 3, 1, 1).requires_grad_(False)),  # new tensors
+    ):
+        change()
+        mask, new_session = fast_mask()
+        assert new_session is not session
+        masks.append(mask)
+        session = new_session
+    assert all(0 < m.float().mean() < 1 for m in masks[:3])  # real masks: target and background
+    assert all(not torch.equal(a, b) for a, b in zip(masks, masks[1:]))  # each change moved the mask
+    copied = copy.deepcopy(model)  # sessions are not copied; the copy builds its own
+    assert copied._runtime_cache is None and torch.equal(copied.predict(scene, target), masks[-1])
+
+
+def test_runtime_choice_and_fallback_to_torch():
+    model = OneShotFCN(FCNConfig(channels=(8, 8, 16)))
+    rng = np.random.default_rng(2)
+    target = rng.integers(0, 256, (1, 64, 64, 3), dtype=np.uint8)
+    with pytest.raises(ValueError, match="runtime 'jit' is not one of"):
+        model.predict(np.zeros((1, 64, 64, 3), np.uint8), target, runtime="jit")
+    model.predict(np.zeros((1, 64, 64, 3), np.uint8), target)
+    assert model._runtime_cache is None  # training mode: "auto" runs torch
+    model.eval()
+    odd = rng.integers(0, 256, (1, 96, 96, 3), dtype=np.uint8)  # 96 -> 64 "area" resize: not exportable
+    with pytest.warns(UserWarning, match="running the torch model instead"):
+        mask = model.predict(odd, target)
+    assert torch.equal(mask, model.predict(odd, target, runtime="torch"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the failure is remembered: no second export, no second warning
+        model.predict(odd, target)
+    with pytest.raises(torch.onnx.errors.OnnxExporterError):
+        OneShotFCN(model.config).eval().predict(odd, target, runtime="onnxruntime")
 
 
 @pytest.mark.parametrize(
