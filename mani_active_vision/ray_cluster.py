@@ -1,7 +1,7 @@
 """Ray, the optional extra behind `make_vec_env(..., backend="ray")` and `sweep.run_sweep` (docs/distributed.md).
 
 `connect(address)` joins a cluster or starts a local Ray; `as_completed(fn, items)` runs `fn(item)` as Ray
-tasks (one CPU each, a fresh worker process each) and yields each result where it ran, as it finishes.
+tasks (one CPU each) and yields each result where it ran, as it finishes.
 Importing this module needs Ray (`pip install -e '.[distributed]'`); nothing else in the project does.
 """
 
@@ -21,8 +21,6 @@ except ModuleNotFoundError as e:
         name="ray",
     ) from e
 
-LOCAL_CPUS_DEFAULT = os.cpu_count() or 1
-
 
 def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     """Make sure this process talks to a Ray cluster; if it already does (`ray.init` was called), nothing.
@@ -34,8 +32,8 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     if ray.is_initialized():
         return
     if address is None:
-        # no dashboard: on a small machine it costs a core's worth of start-up and nothing here reads it
-        ray.init(address="local", num_cpus=num_cpus or LOCAL_CPUS_DEFAULT, include_dashboard=False)
+        # no dashboard: nothing here reads it, and on a small machine each of Ray's daemons slows the start
+        ray.init(address="local", num_cpus=num_cpus or os.cpu_count(), include_dashboard=False)
     else:
         ray.init(address=address)
 
@@ -48,12 +46,12 @@ def node_id() -> str:
 def as_completed(
     fn: Callable, items: Sequence, address: str | None = None
 ) -> Iterator[tuple[int, str | None, object, BaseException | None]]:
-    """Run `fn(item)` for every item as a Ray task (one CPU; `max_calls=1`: each in a fresh worker process,
-    so no run inherits another's renderer or memory) and yield `(index, node_id, result, error)` as each
-    finishes: `error` is the exception a failed run raised (then `result` and `node_id` are None).
-    The tasks are queued at once; Ray starts as many as the cluster has CPUs."""
+    """Run `fn(item)` for every item as a Ray task (one CPU each) and yield `(index, node_id, result, error)`
+    as each finishes: `error` is the exception a failed run raised (then `result` and `node_id` are None).
+    The tasks are queued at once; Ray starts as many as the cluster has CPUs. A worker process runs one
+    task after another, as a sequential loop runs its runs in one process (the imports are paid once)."""
     connect(address)
-    task = ray.remote(num_cpus=1, max_calls=1)(_on_node)
+    task = ray.remote(num_cpus=1)(_on_node)
     pending = {task.remote(fn, item): index for index, item in enumerate(items)}
     try:
         while pending:

@@ -93,7 +93,7 @@ class RayVectorEnv(gym.vector.VectorEnv):
         self.pids = [d["pid"] for d in described]
         self.node_ids = [d["node_id"] for d in described]
         """where each env runs: its actor's process id and Ray node id"""
-        self._where = [f"Ray actor, pid {d['pid']} on node {d['node_ip']}" for d in described]
+        self._where = [f"Ray actor, pid {d['pid']} on node {d['node_ip']} {d['node_id'][:8]}" for d in described]
         first = described[0]
         self.single_observation_space = first["observation_space"]
         self.single_action_space = first["action_space"]

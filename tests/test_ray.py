@@ -1,8 +1,8 @@
 """The Ray backend and sweeps on a local Ray (2 CPUs): the same observations as the CPU backend, autoreset,
 a killed actor, clear errors, and a sweep of two tiny training runs that resumes and matches a sequential one.
 
-Functions that run in Ray workers are defined inside the tests: Ray ships those by value (a function of
-this test module, which the workers cannot import, would be shipped by name).
+Ray ships this module's functions and classes to its workers by value (registered in the fixture): the
+workers cannot import a test module by name.
 """
 
 import json
@@ -30,8 +30,10 @@ from mani_active_vision.vec_env import WorkerCrashedError, make_vec_env
 @pytest.fixture(scope="module", autouse=True)
 def local_ray():
     assert not ray.is_initialized()
-    ray.init(num_cpus=2, include_dashboard=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False)  # a new one: never another job's Ray
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     yield
+    ray.cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
     ray.shutdown()
 
 
@@ -102,7 +104,6 @@ class _Slow(gym.Wrapper):
 
 
 def test_env_errors_reach_the_caller_and_an_actor_killed_mid_step_is_named_and_the_others_released():
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this module
     env = RayVectorEnv([lambda: _Slow(gym.make("CartPole-v1"))] * 2)
     env.reset(seed=0)
     with pytest.raises(AssertionError, match="invalid"):  # CartPole's own check of the action, as itself
@@ -195,12 +196,12 @@ def test_sweep_bookkeeping_failures_and_files_shipped_back(tmp_path):
     assert (tmp_path / "driver" / "a" / "eval.json").exists() and not list((tmp_path / "driver").rglob("*.part"))
 
 
-def test_without_ray_the_cpu_backend_works_and_the_ray_backend_says_how_to_install_it(tmp_path):
+def test_without_ray_the_cpu_backend_and_sequential_sweeps_work_and_ray_says_how_to_install_it(tmp_path):
     code = """
 import sys
 sys.modules["ray"] = None  # as if Ray were not installed
-import numpy as np
 import gymnasium as gym
+import numpy as np
 from mani_active_vision.vec_env import CPUVectorEnv, make_vec_env
 from mani_active_vision.sweep import Run, run_sweep
 env = CPUVectorEnv([lambda: gym.make("CartPole-v1")], context="forkserver")  # the CPU backend's pool
