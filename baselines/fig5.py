@@ -3,11 +3,14 @@
 (a) fixed object placement; (b) random placement with and without the scripted exploration;
 (c) random placement with exploration, with and without the link state (camera position) in the state.
 
-    python baselines/fig5.py --conditions fixed --seeds 0 1 2      # one condition (run several in parallel)
+    python baselines/fig5.py                                        # every run, as Ray tasks: one per core
+    python baselines/fig5.py --ray-address auto                     # on the Ray cluster this machine joined
+    python baselines/fig5.py --conditions fixed --seeds 0 1 2 --sequential   # one after another, no Ray
     python baselines/fig5.py --plot-only                            # curves and table from finished runs
 
 Each (condition, seed) trains `agents.dqn` (paper configuration) and then evaluates the greedy agent on
-fixed evaluation seeds; finished runs are skipped, so an interrupted job resumes.
+fixed evaluation seeds (`evaluation.training_run`); the runs are a `sweep` (docs/distributed.md): finished
+runs are skipped, so an interrupted job resumes, and the results are the same however the runs were spread.
 """
 
 from __future__ import annotations
@@ -21,12 +24,10 @@ import torch
 import tyro
 
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import make_policy
-from mani_active_vision.envs import EnvConfig, make_env
-from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
+from mani_active_vision.envs import EnvConfig
 from mani_active_vision.evaluation.report import plot_curves, spread
-from mani_active_vision.json_io import save_json
-from mani_active_vision.metrics import summarize
+from mani_active_vision.evaluation.training_run import train_and_evaluate
+from mani_active_vision.sweep import Run, run_sweep
 
 CONDITIONS = {  # name: (env options, DQN options)
     "fixed": (dict(placement="fixed"), dict(explore=False)),
@@ -68,34 +69,24 @@ class Args:
     """only collect finished runs into curves and the table"""
     env: EnvConfig = field(default_factory=EnvConfig)
     """the env options every condition starts from (each condition sets its own on top)"""
+    ray_address: str | None = None
+    """the Ray cluster to run on: auto (the one this machine joined with `ray start`), host:6379 or
+    ray://host:10001; unset: a local Ray, one run per core"""
+    sequential: bool = False
+    """run one after another in this process, without Ray"""
 
 
-def run(condition: str, seed: int, args: Args):
-    run_dir = os.path.join(args.out_dir, condition)
-    eval_path = os.path.join(run_dir, f"seed{seed}", "eval.json")
-    if os.path.exists(eval_path):
-        return
-    env_options, dqn_options = CONDITIONS[condition]
-    train_args = dqn.Args(
-        env=args.env.replace(**env_options),
-        seed=seed,
-        episodes=args.episodes,
-        run_dir=run_dir,
-        run_name=f"seed{seed}",
-        **dqn_options,
-    )
-    result = dqn.train(train_args)
-    env = make_env(train_args.env)
-    try:
-        checkpoint = result["checkpoint"]
-        policy_kwargs = dict(then="dqn", checkpoint=checkpoint) if train_args.explore else dict(checkpoint=checkpoint)
-        policy = make_policy("explore" if train_args.explore else "dqn", env, **policy_kwargs)
-        episodes = evaluate(
-            env, policy, eval_seeds(args.eval_episodes), with_reference=False, desc=f"eval {condition} {seed}"
-        )
-    finally:
-        env.close()
-    save_json({"summary": summarize(episodes), "episodes": episodes}, eval_path)
+def runs(args: Args) -> list[Run]:
+    """One run per (condition, seed) of `args`, in the folder `out_dir/<condition>/seed<seed>`."""
+    found = []
+    for condition in args.conditions:
+        env_options, dqn_options = CONDITIONS[condition]
+        for seed in args.seeds:
+            train_args = dqn.Args(env=args.env.replace(**env_options), seed=seed, episodes=args.episodes, **dqn_options)
+            found.append(
+                Run(f"{condition}/seed{seed}", train_and_evaluate, (train_args, args.eval_episodes, args.sequential))
+            )
+    return found
 
 
 def read_json(path: str):
@@ -160,9 +151,7 @@ def main(args: Args):
         if condition not in CONDITIONS:
             raise ValueError(f"condition={condition!r} is not one of: {', '.join(CONDITIONS)}")
     if not args.plot_only:
-        for condition in args.conditions:
-            for seed in args.seeds:
-                run(condition, seed, args)
+        run_sweep(runs(args), args.out_dir, address=args.ray_address, sequential=args.sequential)
     report(args)
 
 

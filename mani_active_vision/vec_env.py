@@ -8,11 +8,14 @@ the task, `DiscreteDirections` and the config's box state) as a gymnasium `Vecto
   torch thread. Observations, rewards and infos are numpy arrays with a leading env dimension.
 - GPU (`backend="gpu"`, the default with CUDA): one ManiSkill env with `num_envs` parallel scenes on the
   GPU physics backend, in ManiSkill's `ManiSkillVectorEnv`; observations are torch tensors on the GPU.
+- Ray (`backend="ray"`, never the default; `pip install -e '.[distributed]'`): each env in a Ray actor on
+  this machine or across a cluster (`address`), with the CPU backend's layout, autoreset and seeding
+  (`mani_active_vision/ray_vec_env.py`, docs/distributed.md).
 
-Both reset finished episodes in the same step (gymnasium's `SAME_STEP` autoreset: the last observation of
+All reset finished episodes in the same step (gymnasium's `SAME_STEP` autoreset: the last observation of
 an episode is in `info["final_obs"]`). `wrappers` (e.g. `DiscreteDirections`,
-`functools.partial(BoxState, with_ee_pos=True)`) are applied to each env, innermost first; on the CPU they
-run inside the workers, so they must be picklable (classes, `functools.partial`, module-level functions).
+`functools.partial(BoxState, with_ee_pos=True)`) are applied to each env, innermost first; on the CPU and on Ray
+they run inside the workers, so they must be picklable (classes, `functools.partial`, module-level functions).
 
 Seeds follow gymnasium: `reset(seed=s)` seeds worker i with `s + i` (the GPU backend derives the scenes'
 seeds from `s` in ManiSkill's way), so workers differ and a run reproduces. A worker that dies raises
@@ -32,13 +35,10 @@ import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
 from mani_active_vision.envs import ENV_ID, EnvConfig, wrap_env
+from mani_active_vision.vec_errors import WorkerCrashedError
 
-BACKENDS = ("auto", "cpu", "gpu")
+BACKENDS = ("auto", "cpu", "gpu", "ray")
 START_METHODS = ("forkserver", "spawn")
-
-
-class WorkerCrashedError(RuntimeError):
-    """A worker process of a CPU vector env died (killed, segfault, out of memory)."""
 
 
 def make_vec_env(
@@ -47,10 +47,12 @@ def make_vec_env(
     wrappers: Sequence[Callable[[gym.Env], gym.Env]] = (),
     backend: str = "auto",
     start_method: str = "forkserver",
+    address: str | None = None,
     **env_kwargs,
 ) -> gym.vector.VectorEnv:
     """`num_envs` copies of `env_id` (made with `env_kwargs`), or of the project's env for an `EnvConfig`
-    (then `wrappers` go around its box state), as one vector env; see the module docstring."""
+    (then `wrappers` go around its box state), as one vector env; see the module docstring. `address`: the
+    Ray cluster of `backend="ray"` (None: a local Ray; "auto" or "ray://host:10001": join that cluster)."""
     if isinstance(env_id, EnvConfig):
         if env_kwargs:
             raise ValueError(
@@ -67,12 +69,20 @@ def make_vec_env(
         raise ValueError(f"num_envs={num_envs!r} must be a positive integer")
     if "num_envs" in env_kwargs:
         raise ValueError("pass num_envs as make_vec_env's argument, not in env_kwargs")
+    if address is not None and backend != "ray":
+        raise ValueError(f"address={address!r} is the Ray cluster's: it needs backend='ray', not {backend!r}")
     if backend == "auto":
         backend = "gpu" if torch.cuda.is_available() else "cpu"
     if backend == "gpu":
         return _make_gpu_vec_env(env_id, num_envs, wrappers, env_kwargs)
     env_kwargs.setdefault("render_backend", "cpu")
     env_fn = functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs)
+    if backend == "ray":
+        # Ray is an optional extra: its backend is imported only when asked for (an ImportError that says
+        # how to install it if Ray is missing), so that the CPU and GPU backends work without it
+        from mani_active_vision.ray_vec_env import RayVectorEnv
+
+        return RayVectorEnv([env_fn] * num_envs, address=address)
     return CPUVectorEnv([env_fn] * num_envs, context=start_method, autoreset_mode=AutoresetMode.SAME_STEP)
 
 

@@ -120,7 +120,7 @@ def test_a_direction_index_without_discrete_directions_says_what_to_do():
 
 
 def test_bad_arguments_name_the_valid_values():
-    with pytest.raises(ValueError, match="backend='tpu' is not one of: auto, cpu, gpu"):
+    with pytest.raises(ValueError, match="backend='tpu' is not one of: auto, cpu, gpu, ray"):
         make_vec_env("ActiveVisionFind-v0", 2, backend="tpu")
     with pytest.raises(ValueError, match="num_envs=0"):
         make_vec_env("ActiveVisionFind-v0", 0)
