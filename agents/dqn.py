@@ -51,9 +51,9 @@ import tyro
 import tyro.extras
 from tqdm import tqdm
 
-from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array
+from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array, num_actions
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
-from mani_active_vision.directions import DIRECTIONS
+from mani_active_vision.directions import action_names
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
@@ -202,16 +202,19 @@ def td_loss(
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
 
 
-MIRRORED_ACTION = np.array([DIRECTIONS.index({"left": "right", "right": "left"}.get(d, d)) for d in DIRECTIONS])
-"""The direction that mirrors each direction left-right: left <-> right, the others unchanged."""
+ACTIONS = action_names(stay_action=True)
+MIRRORED_ACTION = np.array([ACTIONS.index({"left": "right", "right": "left"}.get(a, a)) for a in ACTIONS])
+"""The action that mirrors each action left-right: left <-> right, the others (stay too) unchanged. `stay`
+comes last, so the first six entries are the table of the six directions alone."""
 
 
 def mirror_state(state: np.ndarray) -> np.ndarray:
     """The state of the left-right mirrored situation: the box (x, y, w, h) of the mirrored image (zeros,
-    the unseen state, stay zeros) and, if present, the last direction's one-hot with left and right swapped."""
+    the unseen state, stay zeros) and, if present, the last action's one-hot (6 or 7 long) with left and
+    right swapped."""
     x, y, w, h = state[:4]
     box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
-    return np.concatenate([box, state[4:][MIRRORED_ACTION]]) if len(state) > 4 else box
+    return np.concatenate([box, state[4:][MIRRORED_ACTION[: len(state) - 4]]]) if len(state) > 4 else box
 
 
 SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
@@ -278,11 +281,12 @@ def train(args: Args, progress: bool = True) -> dict:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     env = make_env(args.env)
-    state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if args.with_last_action else 0)
+    actions = num_actions(env)  # 6, or 7 with env.stay_action
+    state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
-    q_network = QNetwork(state_dim, args.hidden_units)
+    q_network = QNetwork(state_dim, args.hidden_units, actions)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate)
-    target_network = QNetwork(state_dim, args.hidden_units)
+    target_network = QNetwork(state_dim, args.hidden_units, actions)
     target_network.load_state_dict(q_network.state_dict())
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
