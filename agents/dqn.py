@@ -3,6 +3,7 @@
     python -m mani_active_vision.agents.dqn --help
     python -m mani_active_vision.agents.dqn paper --seed 0        # the paper's configuration
     python -m mani_active_vision.agents.dqn shaped --seed 0       # ... with our learner's reward (below)
+    python -m mani_active_vision.agents.dqn hold --seed 0         # ... that also pays for time in success
 
 The paper's configuration is the default (`Args()`, preset `paper`): an MLP with one hidden layer of 20 units, Adam at lr 1e-3, a
 replay buffer of 50,000 transitions, 100 episodes, ε decayed linearly 0.1 -> 0.02 over the episodes, the
@@ -32,6 +33,9 @@ focus in 100 episodes (0% success, docs/results.md; `LearnerReward`, docs/design
 - the DQN's own previous direction (one-hot) joins the box in its state, so that it can tell a step
   forward from a step back in the same box;
 - double DQN; every transition also stored mirrored left-right; 2 updates per env step.
+The preset `hold` (`HOLD`) is `shaped` without the episode end at success: the bonus of 1 at the first
+success, then `hold_reward` 0.2 for every later step in success, so that keeping the target in focus pays
+(shaped ends at success, so it never learns to stay).
 Evaluation is always on the task as it is (no episode end at success, the env's own reward).
 """
 
@@ -103,7 +107,10 @@ class Args:
     """end a training episode at the first success, a terminal state for the learner (not in the paper;
     evaluation runs the env as it is)"""
     success_bonus: float = 0.0
-    """added to the reward of a step that reaches success (not in the paper)"""
+    """added to the reward of the step that first reaches success in an episode (not in the paper)"""
+    hold_reward: float = 0.0
+    """added to the reward of every later step in success: time in success pays, so that a learner whose
+    episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
     refusal_penalty: float = 0.0
     """subtracted from the reward of a refused step: the arm did not move (not in the paper)"""
     step_cost: float = 0.0
@@ -250,15 +257,17 @@ class LearnerReward:
 
     def reset(self, info):
         self.previous = self._potential(info)
+        self.reached = False  # success reached this episode
 
     def __call__(self, env_reward, info) -> float:
         args, current = self.args, self._potential(info)
         reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
         self.previous = current
-        refused = first_env(info, "refused")
-        return (
-            reward + args.success_bonus * first_env(info, "success") - args.refusal_penalty * refused - args.step_cost
-        )
+        success = bool(first_env(info, "success"))
+        if success:  # the bonus once, at the first success; time in success after it (also regained) pays
+            reward += args.hold_reward if self.reached else args.success_bonus
+            self.reached = True
+        return reward - args.refusal_penalty * first_env(info, "refused") - args.step_cost
 
 
 def default_run_name(args: Args) -> str:
@@ -271,6 +280,11 @@ def train(args: Args, progress: bool = True) -> dict:
     """Train one DQN; returns {"run_dir", "checkpoint", "history" (one dict per episode), "transitions" (stored)}."""
     if args.shaping not in SHAPINGS:
         raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
+    if args.hold_reward and args.end_at_success:
+        raise ValueError(
+            f"hold_reward={args.hold_reward} pays for time in success, but end_at_success ends a training "
+            "episode at its first success: turn end_at_success off (--no-end-at-success)"
+        )
     if args.mirror_augment and args.env.with_ee_pos:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
     if args.env.box_source == "none":
@@ -389,9 +403,14 @@ SHAPED = dict(
 )
 """The options of the `shaped` preset (the paper's learner with our learner's reward; see the module docstring)."""
 
+HOLD = {**SHAPED, "end_at_success": False, "hold_reward": 0.2}
+"""The options of the `hold` preset: `shaped`, but training episodes go on past success and every later step
+in success earns `hold_reward` (docs/control.md)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
+    "hold": ("shaped, but episodes go on past success and time in success pays", Args(**HOLD)),
 }
 
 if __name__ == "__main__":

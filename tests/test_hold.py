@@ -13,6 +13,7 @@ from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import STAY, action_names, direction_deltas
 from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.views import REVERSE, neighbours
 from mani_active_vision.recording.log import action_name
 
@@ -96,3 +97,40 @@ def test_the_planners_steps_are_the_envs_steps_and_reverse_exactly():
         assert torch.allclose(again, pos, atol=1e-6), name
     with pytest.raises(ValueError, match="unknown action names.*valid are"):
         direction_deltas(pos, 0.05, 1.0, ("sideways",))
+
+
+def test_learner_reward_pays_the_bonus_once_then_time_in_success():
+    args = dqn.Args(success_bonus=1.0, hold_reward=0.2, step_cost=0.02, refusal_penalty=0.1)
+    reward = dqn.LearnerReward(args, success_fraction=0.05)
+
+    def info(success, refused=False):
+        return {
+            "success": torch.tensor([success]),
+            "refused": torch.tensor([refused]),
+            "target_fraction": torch.zeros(1),
+            "target_center_offset": torch.tensor([float("inf")]),
+        }
+
+    reward.reset(info(False))
+    env_reward = torch.zeros(1)
+    steps = [(False, False), (True, False), (True, False), (False, True), (True, False)]
+    paid = [reward(env_reward, info(*s)) for s in steps]
+    # the first success earns the bonus; later steps in success (also after losing it) earn hold_reward
+    assert paid == pytest.approx([-0.02, 0.98, 0.18, -0.12, 0.18])
+    reward.reset(info(False))
+    assert reward(env_reward, info(True)) == pytest.approx(0.98)  # a new episode: the bonus again
+    shaped = dqn.LearnerReward(dqn.Args(**dqn.SHAPED), success_fraction=0.05)
+    shaped.reset(info(False))
+    assert [shaped(env_reward, info(True)) for _ in range(2)][1] == pytest.approx(-0.02)  # shaped: no hold reward
+    assert dqn.PRESETS["hold"][1].hold_reward == 0.2 and not dqn.PRESETS["hold"][1].end_at_success
+    with pytest.raises(ValueError, match="hold_reward=0.2 pays for time in success.*--no-end-at-success"):
+        dqn.train(dqn.Args(**{**dqn.HOLD, "end_at_success": True}), progress=False)
+
+
+def test_evaluate_takes_reference_steps_measured_before():
+    env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search", max_episode_steps=5)))
+    servo = make_policy("servo", env)
+    episodes = evaluate(env, servo, [1_000_000, 1_000_001], references={1_000_000: 3.0, 1_000_001: float("nan")})
+    assert [e["reference_steps"] for e in episodes[:1]] == [3.0] and np.isnan(episodes[1]["reference_steps"])
+    with pytest.raises(KeyError, match="no steps for seed 1000002"):  # an error, not a silent NaN
+        evaluate(env, servo, [1_000_002], references={1_000_000: 3.0})
