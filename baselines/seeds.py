@@ -152,7 +152,8 @@ def report(args: Args) -> str:
     table = "\n".join(lines)
     note = (
         f"\n\n({args.eval_episodes} evaluation episodes per seed from 1,000,000, {args.eval_object_set} objects, "
-        f"{args.eval_box_source} box; focus held over the successful episodes)\n"
+        f"{args.eval_box_source} box; focus held over the successful episodes; in the mean row, focus held and steps "
+        "to success are over the seeds where they exist)\n"
     )
     with open(os.path.join(args.out_dir, f"{args.preset}_table.md"), "w") as f:
         f.write(table + note)
