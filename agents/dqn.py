@@ -3,6 +3,7 @@
     python -m mani_active_vision.agents.dqn --help
     python -m mani_active_vision.agents.dqn paper --seed 0        # the paper's configuration
     python -m mani_active_vision.agents.dqn shaped --seed 0       # ... with our learner's reward (below)
+    python -m mani_active_vision.agents.dqn hold --seed 0         # ... that also pays for time in success
 
 The paper's configuration is the default (`Args()`, preset `paper`): an MLP with one hidden layer of 20 units, Adam at lr 1e-3, a
 replay buffer of 50,000 transitions, 100 episodes, ε decayed linearly 0.1 -> 0.02 over the episodes, the
@@ -32,6 +33,9 @@ focus in 100 episodes (0% success, docs/results.md; `LearnerReward`, docs/design
 - the DQN's own previous direction (one-hot) joins the box in its state, so that it can tell a step
   forward from a step back in the same box;
 - double DQN; every transition also stored mirrored left-right; 2 updates per env step.
+The preset `hold` (`HOLD`) is `shaped` without the episode end at success: the bonus of 1 at the first
+success, then `hold_reward` 0.2 for every later step in success, so that keeping the target in focus pays
+(shaped ends at success, so it never learns to stay).
 Evaluation is always on the task as it is (no episode end at success, the env's own reward).
 """
 
@@ -51,9 +55,9 @@ import tyro
 import tyro.extras
 from tqdm import tqdm
 
-from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array
+from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array, num_actions
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
-from mani_active_vision.directions import DIRECTIONS
+from mani_active_vision.directions import action_names
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
@@ -103,7 +107,10 @@ class Args:
     """end a training episode at the first success, a terminal state for the learner (not in the paper;
     evaluation runs the env as it is)"""
     success_bonus: float = 0.0
-    """added to the reward of a step that reaches success (not in the paper)"""
+    """added to the reward of the step that first reaches success in an episode (not in the paper)"""
+    hold_reward: float = 0.0
+    """added to the reward of every later step in success: time in success pays, so that a learner whose
+    episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
     refusal_penalty: float = 0.0
     """subtracted from the reward of a refused step: the arm did not move (not in the paper)"""
     step_cost: float = 0.0
@@ -202,16 +209,19 @@ def td_loss(
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
 
 
-MIRRORED_ACTION = np.array([DIRECTIONS.index({"left": "right", "right": "left"}.get(d, d)) for d in DIRECTIONS])
-"""The direction that mirrors each direction left-right: left <-> right, the others unchanged."""
+ACTIONS = action_names(stay_action=True)
+MIRRORED_ACTION = np.array([ACTIONS.index({"left": "right", "right": "left"}.get(a, a)) for a in ACTIONS])
+"""The action that mirrors each action left-right: left <-> right, the others (stay too) unchanged. `stay`
+comes last, so the first six entries are the table of the six directions alone."""
 
 
 def mirror_state(state: np.ndarray) -> np.ndarray:
     """The state of the left-right mirrored situation: the box (x, y, w, h) of the mirrored image (zeros,
-    the unseen state, stay zeros) and, if present, the last direction's one-hot with left and right swapped."""
+    the unseen state, stay zeros) and, if present, the last action's one-hot (6 or 7 long) with left and
+    right swapped."""
     x, y, w, h = state[:4]
     box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
-    return np.concatenate([box, state[4:][MIRRORED_ACTION]]) if len(state) > 4 else box
+    return np.concatenate([box, state[4:][MIRRORED_ACTION[: len(state) - 4]]]) if len(state) > 4 else box
 
 
 SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
@@ -247,15 +257,17 @@ class LearnerReward:
 
     def reset(self, info):
         self.previous = self._potential(info)
+        self.reached = False  # success reached this episode
 
     def __call__(self, env_reward, info) -> float:
         args, current = self.args, self._potential(info)
         reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
         self.previous = current
-        refused = first_env(info, "refused")
-        return (
-            reward + args.success_bonus * first_env(info, "success") - args.refusal_penalty * refused - args.step_cost
-        )
+        success = bool(first_env(info, "success"))
+        if success:  # the bonus once, at the first success; time in success after it (also regained) pays
+            reward += args.hold_reward if self.reached else args.success_bonus
+            self.reached = True
+        return reward - args.refusal_penalty * first_env(info, "refused") - args.step_cost
 
 
 def default_run_name(args: Args) -> str:
@@ -268,6 +280,11 @@ def train(args: Args, progress: bool = True) -> dict:
     """Train one DQN; returns {"run_dir", "checkpoint", "history" (one dict per episode), "transitions" (stored)}."""
     if args.shaping not in SHAPINGS:
         raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
+    if args.hold_reward and args.end_at_success:
+        raise ValueError(
+            f"hold_reward={args.hold_reward} pays for time in success, but end_at_success ends a training "
+            "episode at its first success: turn end_at_success off (--no-end-at-success)"
+        )
     if args.mirror_augment and args.env.with_ee_pos:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
     if args.env.box_source == "none":
@@ -278,11 +295,12 @@ def train(args: Args, progress: bool = True) -> dict:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     env = make_env(args.env)
-    state_dim = box_array(env.observation_space.sample()).shape[-1] + (len(DIRECTIONS) if args.with_last_action else 0)
+    actions = num_actions(env)  # 6, or 7 with env.stay_action
+    state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
-    q_network = QNetwork(state_dim, args.hidden_units)
+    q_network = QNetwork(state_dim, args.hidden_units, actions)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate)
-    target_network = QNetwork(state_dim, args.hidden_units)
+    target_network = QNetwork(state_dim, args.hidden_units, actions)
     target_network.load_state_dict(q_network.state_dict())
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
@@ -385,9 +403,14 @@ SHAPED = dict(
 )
 """The options of the `shaped` preset (the paper's learner with our learner's reward; see the module docstring)."""
 
+HOLD = {**SHAPED, "end_at_success": False, "hold_reward": 0.2}
+"""The options of the `hold` preset: `shaped`, but training episodes go on past success and every later step
+in success earns `hold_reward` (docs/control.md)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
+    "hold": ("shaped, but episodes go on past success and time in success pays", Args(**HOLD)),
 }
 
 if __name__ == "__main__":

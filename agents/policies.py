@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -37,6 +38,12 @@ def box_array(obs) -> np.ndarray:
     return np.atleast_2d(array).astype(np.float32)
 
 
+def num_actions(env) -> int:
+    """How many discrete actions the env takes: 6 directions, or 7 with `stay` (batched or not)."""
+    space = env.action_space
+    return int(space.n) if isinstance(space, gym.spaces.Discrete) else int(space.nvec[0])
+
+
 def refused_array(info, num_envs: int) -> np.ndarray:
     """Whether the last step was refused, per env (False at reset, when `info` has no `refused`)."""
     if not info or "refused" not in info:
@@ -47,17 +54,18 @@ def refused_array(info, num_envs: int) -> np.ndarray:
 
 
 class RandomPolicy:
-    """Uniformly random directions (a lower bound)."""
+    """Uniformly random actions (a lower bound)."""
 
     def __init__(self, env, seed: int = 0):
         self.num_envs = env.unwrapped.num_envs
+        self.num_actions = num_actions(env)
         self.rng = np.random.default_rng(seed)
 
     def reset(self, obs, info):
         pass
 
     def act(self, obs, info) -> np.ndarray:
-        return self.rng.integers(0, len(DIRECTIONS), size=self.num_envs)
+        return self.rng.integers(0, self.num_actions, size=self.num_envs)
 
 
 class Sweep:
@@ -141,8 +149,8 @@ class ExplorePolicy:
 class DQNPolicy:
     """A Q-network: argmax Q, or ε-greedy with `epsilon`. From an `agents.dqn` checkpoint file, or (while
     training) the live `q_network` itself. With `with_last_action` (read from the checkpoint's config) the
-    network's state is the box followed by a one-hot of this policy's own previous direction (zeros at the
-    start of an episode): `state(obs)`."""
+    network's state is the box followed by a one-hot of this policy's own previous action (zeros at the
+    start of an episode): `state(obs)`. The env's action count (6, or 7 with `stay`) must be the network's."""
 
     def __init__(
         self,
@@ -159,8 +167,14 @@ class DQNPolicy:
         self.q_network, self.config = (q_network, {}) if q_network is not None else load_q_network(checkpoint)
         self.with_last_action = bool(self.config.get("with_last_action", with_last_action))
         self.last_action = np.full(self.num_envs, -1)
+        self.num_actions = num_actions(env)
+        if self.num_actions != self.q_network.num_actions:
+            raise ValueError(
+                f"the Q-network has {self.q_network.num_actions} actions, the env takes {self.num_actions} "
+                f"(env.stay_action={self.num_actions > len(DIRECTIONS)}): train and act with the same stay_action"
+            )
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
-            len(DIRECTIONS) if self.with_last_action else 0
+            self.num_actions if self.with_last_action else 0
         )
         if state_dim != self.q_network.state_dim:
             raise ValueError(
@@ -178,7 +192,7 @@ class DQNPolicy:
         box = box_array(obs)
         if not self.with_last_action:
             return box
-        one_hot = (self.last_action[:, None] == np.arange(len(DIRECTIONS))).astype(np.float32)
+        one_hot = (self.last_action[:, None] == np.arange(self.num_actions)).astype(np.float32)
         return np.concatenate([box, one_hot], 1)
 
     def act(self, obs, info) -> np.ndarray:
@@ -186,7 +200,7 @@ class DQNPolicy:
             q = self.q_network(torch.as_tensor(self.state(obs)))
         action = q.argmax(-1).numpy().astype(np.int64)
         explore = self.rng.random(self.num_envs) < self.epsilon
-        action[explore] = self.rng.integers(0, len(DIRECTIONS), size=int(explore.sum()))
+        action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action
         return action
 

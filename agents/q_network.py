@@ -1,7 +1,8 @@
 """The paper's Q-network and its checkpoint files (shared by the DQN learner and the DQN policy).
 
 A checkpoint is `{"state_dict", "config"}`: `config` holds the run's arguments (`agents.dqn.Args` as a dict,
-its env config under "env") and the network's `state_dim`; it loads with `torch.load(..., weights_only=True)`.
+its env config under "env") and the network's `state_dim` and `num_actions` (6 where a checkpoint predates
+the optional `stay` action); it loads with `torch.load(..., weights_only=True)`.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ class QNetwork(nn.Module):
 
     def __init__(self, state_dim: int, hidden_units: int = 20, num_actions: int = len(DIRECTIONS)):
         super().__init__()
-        self.state_dim = state_dim
+        self.state_dim, self.num_actions = state_dim, num_actions
         self.network = nn.Sequential(
             nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions)
         )
@@ -32,7 +33,7 @@ class QNetwork(nn.Module):
 
 def save_q_network(path: str, q_network: QNetwork, args) -> None:
     """Weights + the run's arguments (a dataclass with `hidden_units` and a nested `env: EnvConfig`)."""
-    config = {**dataclasses.asdict(args), "state_dim": q_network.state_dim}
+    config = {**dataclasses.asdict(args), "state_dim": q_network.state_dim, "num_actions": q_network.num_actions}
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     torch.save({"state_dict": q_network.state_dict(), "config": config}, path)
 
@@ -47,7 +48,7 @@ def load_q_network(path: str) -> tuple[QNetwork, dict]:
     config = checkpoint["config"]
     if "env" not in config:
         raise ValueError(f"DQN checkpoint {path!r} has no env config: it predates EnvConfig; train it again")
-    q_network = QNetwork(config["state_dim"], config["hidden_units"])
+    q_network = QNetwork(config["state_dim"], config["hidden_units"], config.get("num_actions", len(DIRECTIONS)))
     q_network.load_state_dict(checkpoint["state_dict"])
     return q_network.eval(), config
 

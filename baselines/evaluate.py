@@ -1,5 +1,6 @@
-"""Evaluate a policy on fixed episode seeds: success, success at the end, steps to first see the target,
-steps to success, SPL, final target fraction, return.
+"""Evaluate a policy on fixed episode seeds: success, success at the end, focus held (the share of steps in
+success from the first success on; over the successful episodes), steps to first see the target, steps to
+success, SPL, final target fraction, return (`mani_active_vision.metrics`).
 
     python baselines/evaluate.py --policy servo --episodes 20
     python baselines/evaluate.py --policy explore --then dqn --checkpoint runs/dqn/random_explore_seed0/q_network.pt

@@ -128,8 +128,8 @@ def report(args: Args):
                 )
                 print(f"wrote {path}")
     lines = [
-        "| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval steps to success | eval final target fraction |",
-        "|" + "---|" * 8,
+        "| condition | seeds | training success, last 10 episodes | training return, last 10 | eval success (greedy) | eval success at end | eval focus held | eval steps to success | eval final target fraction |",
+        "|" + "---|" * 9,
     ]
     for condition, data in found.items():
         last = [np.mean([h["success"] for h in hist[-10:]]) for hist in data["histories"]]
@@ -137,7 +137,7 @@ def report(args: Args):
         ev = data["evals"]
         lines.append(
             f"| {condition} | {len(ev)} | {spread(last)} | {spread(last_return)} | {spread([e['success'] for e in ev])} | "
-            f"{spread([e['success_final'] for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_target_fraction'] for e in ev], 3)} |"
+            f"{spread([e['success_final'] for e in ev])} | {spread([e.get('focus_held') for e in ev])} | {spread([e['steps_to_success'] for e in ev])} | {spread([e['final_target_fraction'] for e in ev], 3)} |"
         )
     table = "\n".join(lines)
     with open(os.path.join(args.out_dir, "fig5_table.md"), "w") as f:

@@ -12,7 +12,6 @@ ActiveVisionFind-v0 is chosen from this table.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -22,9 +21,8 @@ import tyro
 from tqdm import tqdm
 
 import mani_active_vision  # noqa: F401
-from mani_active_vision.boxes import target_stats
 from mani_active_vision.envs import ENV_ID, EnvConfig
-from mani_active_vision.robots.iiwa import SEARCH_POS
+from mani_active_vision.evaluation.views import candidate_positions, meets, view_stats
 from mani_active_vision.robots.orbit_controller import solve_ik
 
 
@@ -41,22 +39,6 @@ class Args:
     tolerances: tuple[float, ...] = (0.10, 0.15, 0.20)
 
 
-def candidate_positions(target_xy: np.ndarray, step: float, pitch: float, config) -> np.ndarray:
-    """Lattice points (M, 3) near the target that forward/backward and up/down steps reach from the start."""
-    r_t = float(np.linalg.norm(target_xy))
-    az_t = math.atan2(target_xy[1], target_xy[0])
-    forward_r, forward_z = step * math.cos(pitch), -step * math.sin(pitch)
-    points = []
-    for a in range(-10, 40):
-        for b in range(-20, 20):
-            r = SEARCH_POS[0] + a * forward_r
-            z = SEARCH_POS[2] + a * forward_z + b * step
-            if r_t - 0.45 <= r <= r_t - 0.02 and config.min_height <= z <= 0.6:
-                for d_az in np.radians(np.arange(-12, 12.1, 2.0)):
-                    points.append((r * math.cos(az_t + d_az), r * math.sin(az_t + d_az), z))
-    return np.array(points)
-
-
 def main(args: Args):
     torch.set_num_threads(1)
     config = EnvConfig(
@@ -70,22 +52,14 @@ def main(args: Args):
         env.reset(seed=seed)
         target_xy = base.target.pose.p[0, :2].numpy()
         points = torch.as_tensor(
-            candidate_positions(target_xy, base.step_size, controller.config.pitch, controller.config),
+            candidate_positions(target_xy, base.step_size, controller.config.pitch, controller.config.min_height),
             dtype=torch.float32,
         )
         qpos, ok = solve_ik(points, controller.config.pitch)
         ok &= qpos[:, 3] <= controller.config.max_elbow
-        best = np.zeros_like(reachable, dtype=bool)
-        for q in qpos[ok]:
-            base.agent.robot.set_qpos(q[None])
-            base._hand_images = None
-            seg = base._hand_camera_images()["segmentation"][..., 0]
-            stats = target_stats(seg == base.target_seg_id[:, None, None])
-            if not bool(stats["target_visible"][0]) or bool(stats["touches_border"][0]):
-                continue
-            frac, off = float(stats["target_fraction"][0]), float(stats["center_offset"][0])
-            best |= (np.array(args.fractions)[:, None] <= frac) & (off <= np.array(args.tolerances)[None, :])
-        reachable += best
+        stats = {k: v[:, None, None] for k, v in view_stats(base, qpos[ok]).items()}  # (views, 1, 1)
+        fractions, tolerances = np.array(args.fractions)[:, None], np.array(args.tolerances)[None, :]
+        reachable += meets(stats, fractions, tolerances).any(0)
     env.close()
     share = reachable / args.placements
     print(

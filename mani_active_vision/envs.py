@@ -58,6 +58,9 @@ class EnvConfig:
     """FCN checkpoint for box_source=fcn (empty: the shipped agents/weights/fcn.pt)"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
+    stay_action: bool = False
+    """a seventh action, stay (index 6, a zero step), so that an agent can hold a view (not the paper's:
+    its six directions stay the default; docs/control.md)"""
 
     def __post_init__(self):
         if self.box_source not in BOX_SOURCE_CHOICES:
@@ -105,7 +108,7 @@ class EnvConfig:
 def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
     """`DiscreteDirections`, then `BoxState` as `config` says, around a made task (also inside vector-env
     workers). `segmenter`: the FCN for box_source=fcn (default: loaded from `config.fcn_weights`)."""
-    env = DiscreteDirections(env)
+    env = DiscreteDirections(env, stay_action=config.stay_action)
     if config.box_source == "none":
         return env
     if config.box_source == "fcn" and segmenter is None:
@@ -115,5 +118,5 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
 
 def make_env(config: EnvConfig = EnvConfig(), segmenter=None) -> gym.Env:
     """The project's env: `ActiveVisionFind-v0` (one env, CPU renderer) with the six directions and the
-    box state of `config`. Record it with `mani_active_vision.recording.RerunRecorder(make_env(...), path)`."""
+    box state of `config` (and `stay` with `stay_action`). Record it with `mani_active_vision.recording.RerunRecorder(make_env(...), path)`."""
     return wrap_env(gym.make(ENV_ID, **config.task_kwargs()), config, segmenter)

@@ -2,6 +2,11 @@
 
 Metrics of one episode (`episode_metrics`), steps counted in actions taken:
 - `success`: the task's success held at some step; `success_final`: it holds at the last step (kept focus);
+- `focus_held`: the share of the observations from the first success to the episode's last one (both
+  counted) that are in success: 1 = never lost once found, 1/k = found, then lost for the k - 1 steps to
+  the end. NaN when never successful (there is no focus to hold); the mean over episodes (`summarize`)
+  is over the successful episodes only, so read it with `success` beside it. An episode that ends at its
+  first success (`terminate_on_success`) holds it trivially (1);
 - `steps_to_see`: steps until the target was first in view (0 if in view at reset; NaN if never);
 - `steps_to_success`: steps until the first success (NaN if none);
 - `spl`: success weighted by path length over steps, S * L / max(P, L), with P = `steps_to_success` and
@@ -19,7 +24,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-METRICS = ("success", "success_final", "steps_to_see", "steps_to_success", "spl", "final_target_fraction", "return")
+METRICS = (
+    "success",
+    "success_final",
+    "focus_held",
+    "steps_to_see",
+    "steps_to_success",
+    "spl",
+    "final_target_fraction",
+    "return",
+)
 
 
 def first_env(info: dict, key: str) -> float:
@@ -55,6 +69,15 @@ def first_index(flags: list) -> float:
     return float(flags.index(True)) if True in flags else math.nan
 
 
+def focus_held(success: list) -> float:
+    """The share of `success` flags from the first True to the end that are True (NaN if none is)."""
+    first = first_index(success)
+    if math.isnan(first):
+        return math.nan
+    held = success[int(first) :]
+    return sum(held) / len(held)
+
+
 def episode_metrics(trajectory: Trajectory, reference_steps: float = math.nan) -> dict:
     """The metrics of one episode (see the module docstring); `reference_steps` NaN = no reference."""
     steps_to_success = first_index(trajectory.success)
@@ -66,6 +89,7 @@ def episode_metrics(trajectory: Trajectory, reference_steps: float = math.nan) -
     return {
         "success": float(success),
         "success_final": float(trajectory.success[-1]),
+        "focus_held": focus_held(trajectory.success),
         "steps_to_see": first_index(trajectory.visible),
         "steps_to_success": steps_to_success,
         "spl": spl,
@@ -75,7 +99,8 @@ def episode_metrics(trajectory: Trajectory, reference_steps: float = math.nan) -
 
 
 def summarize(episodes: list[dict]) -> dict:
-    """Mean and standard deviation of each metric over episodes (steps: over the episodes where they exist)."""
+    """Mean and standard deviation of each metric over episodes (steps and focus held: over the episodes
+    where they exist, i.e. that saw the target / succeeded)."""
     summary = {"episodes": len(episodes)}
     for key in METRICS:
         values = np.array([e[key] for e in episodes], dtype=float)

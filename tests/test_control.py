@@ -3,6 +3,9 @@
 import dataclasses
 import json
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -18,6 +21,8 @@ from mani_active_vision.envs import EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
 from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _box_env(**kwargs):
@@ -144,6 +149,7 @@ def test_metrics_on_hand_made_trajectories():
     assert m == {
         "success": 1.0,
         "success_final": 0.0,
+        "focus_held": 0.5,  # in success at step 3, not at step 4
         "steps_to_see": 2.0,
         "steps_to_success": 3.0,
         "spl": pytest.approx(2 / 3),
@@ -157,11 +163,30 @@ def test_metrics_on_hand_made_trajectories():
         never["success"] == 0
         and never["spl"] == 0
         and math.isnan(never["steps_to_success"])
+        and math.isnan(never["focus_held"])
         and never["steps_to_see"] == 0
     )
     summary = summarize([m, never])
     assert summary["success"] == 0.5 and summary["steps_to_success"] == 3.0 and summary["steps_to_see"] == 1.0
-    assert "| a | 2 | 0.50 |" in markdown_table({"a": summary})
+    assert summary["focus_held"] == 0.5  # over the successful episode only
+    assert "| a | 2 | 0.50 | 0.00 | 0.50 ± 0.00 |" in markdown_table({"a": summary})
+    assert "| b | 1 | 0.00 | 0.00 | – |" in markdown_table({"b": summarize([never])})
+
+
+def test_focus_held_is_the_share_in_success_from_the_first_success_on():
+    def focus(success):
+        return episode_metrics(_trajectory([1] * len(success), success, [0.1] * len(success), [0] * (len(success) - 1)))
+
+    assert focus([0, 0, 1, 1, 1])["focus_held"] == 1.0  # found at step 2, never lost
+    assert focus([0, 1, 0, 1, 0, 1])["focus_held"] == pytest.approx(3 / 5)  # oscillating in and out
+    assert focus([0, 1, 0, 0, 0])["focus_held"] == pytest.approx(1 / 4)  # found, then lost for good
+    assert focus([0, 0, 0, 0, 1])["focus_held"] == 1.0  # found at the last step (also success at the end)
+    assert focus([1, 0])["focus_held"] == 0.5  # in success at the reset counts as found at step 0
+    assert math.isnan(focus([0, 0, 0])["focus_held"])
+    episodes = [focus([0, 1, 1, 1]), focus([0, 1, 0, 0, 0]), focus([0, 0])]
+    summary = summarize(episodes)
+    assert summary["focus_held"] == pytest.approx((1 + 1 / 4) / 2)  # the never-successful episode is left out
+    assert summary["focus_held_std"] == pytest.approx(3 / 8)
 
 
 def test_a_short_training_run_end_to_end(tmp_path):
@@ -184,7 +209,8 @@ def test_a_short_training_run_end_to_end(tmp_path):
 
 
 def test_mirrored_transitions_and_shaping_potentials():
-    assert [mav.DIRECTIONS[a] for a in dqn.MIRRORED_ACTION] == ["right", "left", "forward", "backward", "up", "down"]
+    six = dqn.MIRRORED_ACTION[:6]  # the table of the six directions (stay, when enabled, comes last)
+    assert [mav.DIRECTIONS[a] for a in six] == ["right", "left", "forward", "backward", "up", "down"]
     np.testing.assert_allclose(dqn.mirror_state(np.array([0.1, 0.2, 0.3, 0.4])), [0.6, 0.2, 0.3, 0.4])
     assert not dqn.mirror_state(np.zeros(4)).any()  # unseen stays unseen
     last_left = np.array([0.1, 0.2, 0.3, 0.4, 1, 0, 0, 0, 0, 0])  # with the last direction: left -> right
@@ -259,3 +285,16 @@ def test_n_step_window_sums_discounted_rewards_and_flushes_at_the_end():
         expected = torch.tensor([1 + 0.9 * value, 1 + 0.9**3 * value])
         q_sa = q(torch.zeros(2, 4))[:, 0]
     assert dqn.td_loss(q, q, batch, 0.9).item() == pytest.approx(torch.nn.functional.mse_loss(q_sa, expected).item())
+
+
+def test_evaluate_script_writes_focus_held_to_its_json(tmp_path):
+    path = tmp_path / "evaluate.json"
+    command = [sys.executable, os.path.join(ROOT, "baselines", "evaluate.py"), "--policy", "servo", "--episodes", "2"]
+    command += ["--no-reference", "--env.max-episode-steps", "40", "--env.start-pose", "search", "--json", str(path)]
+    subprocess.run(command, cwd=ROOT, check=True, capture_output=True)
+    result = json.loads(path.read_text())
+    for episode in result["episodes"]:  # null exactly when the episode never succeeded
+        assert (episode["focus_held"] is None) == (episode["success"] == 0)
+        assert episode["focus_held"] is None or 0 < episode["focus_held"] <= 1
+    held = [e["focus_held"] for e in result["episodes"] if e["focus_held"] is not None]
+    assert result["summary"]["focus_held"] == (pytest.approx(np.mean(held)) if held else None)

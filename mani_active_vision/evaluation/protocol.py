@@ -20,15 +20,35 @@ def eval_seeds(episodes: int, first: int = EVAL_SEED) -> range:
 
 
 def evaluate(
-    env, policy, seeds, with_reference: bool = True, desc: str = "evaluate", progress: bool = True
+    env,
+    policy,
+    seeds,
+    with_reference: bool = True,
+    desc: str = "evaluate",
+    progress: bool = True,
+    references: dict[int, float] | None = None,
 ) -> list[dict]:
-    """Per-episode metrics of `policy` on the given episode seeds (with the reference's steps for SPL)."""
+    """Per-episode metrics of `policy` on the given episode seeds (with the reference's steps for SPL).
+    `references`: the reference's steps by seed, measured before on the same env (`reference_table`), so
+    that several policies on the same seeds need not run the reference again."""
     episodes = []
     with stop_on_ctrl_c() as stop_requested:  # also between episodes: a reset is never cut in half
         for seed in tqdm(list(seeds), desc=desc, leave=False, disable=not progress):
             if stop_requested():
                 raise KeyboardInterrupt(f"stopped by Ctrl-C after {len(episodes)} episodes")
-            reference = reference_steps(env, seed) if with_reference else math.nan
+            if references is not None:
+                if int(seed) not in references:
+                    raise KeyError(f"references has no steps for seed {seed}; it has seeds {sorted(references)}")
+                reference = references[int(seed)]
+            else:
+                reference = reference_steps(env, seed) if with_reference else math.nan
             metrics = episode_metrics(run_episode(env, policy, seed), reference)
             episodes.append({"seed": int(seed), "reference_steps": reference, **metrics})
     return episodes
+
+
+def reference_table(env, seeds, progress: bool = True) -> dict[int, float]:
+    """The privileged reference's steps to success on each seed (NaN where it does not succeed)."""
+    return {
+        int(s): reference_steps(env, s) for s in tqdm(list(seeds), desc="reference", leave=False, disable=not progress)
+    }

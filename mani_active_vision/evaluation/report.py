@@ -13,16 +13,17 @@ import numpy as np  # noqa: E402
 
 
 def markdown_table(rows: dict[str, dict]) -> str:
-    """rows: name -> `metrics.summarize` output; one row each, mean ± std."""
+    """rows: name -> `metrics.summarize` output; one row each, mean ± std. Focus held is the mean over the
+    successful episodes ("–" when none succeeded; `metrics`)."""
     header = (
-        "| policy | episodes | success | success at end | steps to see | steps to success | SPL "
+        "| policy | episodes | success | success at end | focus held | steps to see | steps to success | SPL "
         "| final target fraction | return |"
     )
-    lines = [header, "|" + "---|" * 9]
+    lines = [header, "|" + "---|" * 10]
     for name, s in rows.items():
         cell = functools.partial(_cell, s)
         lines.append(
-            f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | "
+            f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | {cell('focus_held')} | "
             f"{cell('steps_to_see', '{:.1f}')} | {cell('steps_to_success', '{:.1f}')} | {s['spl']:.2f} | "
             f"{cell('final_target_fraction', '{:.3f}')} | {cell('return')} |"
         )

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from mani_active_vision.directions import DIRECTIONS
+from mani_active_vision.directions import action_names
 
 TARGET_COLOR = (230, 40, 40)
 DISTRACTOR_COLORS = [
@@ -116,9 +116,10 @@ def log_outcome(stream, i: int, text: str, success: bool):
 
 
 def action_name(action: np.ndarray) -> str:
-    """A direction's name for a direction index, else the action's numbers."""
-    if action.size == 1 and np.issubdtype(action.dtype, np.integer) and 0 <= int(action[0]) < len(DIRECTIONS):
-        return DIRECTIONS[int(action[0])]
+    """An action's name for an action index (a direction, or `stay`), else the action's numbers."""
+    names = action_names(stay_action=True)
+    if action.size == 1 and np.issubdtype(action.dtype, np.integer) and 0 <= int(action[0]) < len(names):
+        return names[int(action[0])]
     return np.array2string(action, precision=3)
 
 

@@ -73,6 +73,20 @@ def forward_position(qpos: torch.Tensor) -> torch.Tensor:
     return torch.stack([radius * torch.cos(q1), radius * torch.sin(q1), z], -1)
 
 
+def step_allowed(new_pos: torch.Tensor, target_qpos: torch.Tensor, config) -> tuple[torch.Tensor, torch.Tensor]:
+    """The joint positions (N, 7) for commanded positions `new_pos` (N, 3), and whether a step there from
+    joint targets `target_qpos` (N, 7) is accepted (else refused: docs/design.md §5). `config`: an
+    `OrbitEEPosControllerConfig`. Privileged planners ask it too, so that they judge steps as the arm does."""
+    new_q, ok = solve_ik(new_pos, config.pitch)
+    x, y, z = new_pos.unbind(-1)
+    radius = torch.sqrt(x * x + y * y)
+    ok &= (z >= config.min_height) & (z <= config.max_height)
+    ok &= (radius >= config.min_radius) & (radius <= config.max_radius)
+    ok &= new_q[:, 3] <= config.max_elbow
+    ok &= (new_q - target_qpos).abs().amax(-1) <= config.max_joint_step
+    return new_q, ok
+
+
 class OrbitEEPosController(PDJointPosController):
     """Delta-position control of link 7 with the orientation given by the orbit rule (see module doc)."""
 
@@ -115,13 +129,7 @@ class OrbitEEPosController(PDJointPosController):
     def set_action(self, action):
         action = self._preprocess_action(action).clamp(-self.config.max_step, self.config.max_step)
         new_pos = self.target_pos + action
-        new_q, ok = solve_ik(new_pos, self.config.pitch)
-        x, y, z = new_pos.unbind(-1)
-        radius = torch.sqrt(x * x + y * y)
-        ok &= (z >= self.config.min_height) & (z <= self.config.max_height)
-        ok &= (radius >= self.config.min_radius) & (radius <= self.config.max_radius)
-        ok &= new_q[:, 3] <= self.config.max_elbow
-        ok &= (new_q - self._target_qpos).abs().amax(-1) <= self.config.max_joint_step
+        new_q, ok = step_allowed(new_pos, self._target_qpos, self.config)
         self.refused = ~ok
         self.refused_count += self.refused.to(torch.int32)
         self.target_pos = torch.where(ok[:, None], new_pos, self.target_pos)

@@ -1,0 +1,188 @@
+"""One DQN preset over several training seeds: each seed trains (scripted exploration, then the DQN) and its
+greedy agent is evaluated on the same held-out episodes; a table per seed, mean ± std over seeds and the
+worst seed, beside the scripted servo on the same episodes.
+
+    python baselines/seeds.py --preset hold --seeds 0 1 2 3 4 --eval-episodes 50 --eval-object-set unseen
+
+Runs are kept under `out_dir/preset/seed<k>` and skipped when finished, so one seed at a time can be run
+(`--seeds 3`) and the table made from all finished ones (`--report-only`). The reference's steps (for SPL)
+and the servo's evaluation are measured once per evaluation env and episode count, and cached.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import tyro
+
+from mani_active_vision.agents import dqn
+from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import eval_seeds, evaluate, reference_table
+from mani_active_vision.evaluation.report import spread
+from mani_active_vision.json_io import save_json
+from mani_active_vision.metrics import summarize
+
+COLUMNS = ("success", "success_final", "focus_held", "spl", "steps_to_success")
+
+
+@dataclass
+class Args:
+    preset: str = "hold"
+    """the DQN preset (agents.dqn.PRESETS: paper, shaped, hold)"""
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
+    """training seeds"""
+    episodes: int = 100
+    """training episodes per seed"""
+    eval_episodes: int = 50
+    """greedy evaluation episodes per seed (seeds from 1,000,000, the same for every training seed)"""
+    eval_object_set: str = "unseen"
+    """objects of the evaluation episodes (training uses env.object_set)"""
+    eval_box_source: str = "ground_truth"
+    """the box the agent acts on when evaluated: ground_truth or fcn"""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """the training env (ground-truth box, train objects by default)"""
+    out_dir: str = "runs/seeds"
+    """where runs, caches and the table go"""
+    report_only: bool = False
+    """only make the table from finished runs"""
+
+
+def read_json(path: str):
+    with open(path) as f:
+        return json.load(f)
+
+
+def cached(path: str, key: dict, compute):
+    """`compute()`, saved at `path` with `key`, or the saved value when `key` matches."""
+    if os.path.exists(path):
+        saved = read_json(path)
+        if saved["key"] == key:
+            return saved["value"]
+    value = compute()
+    save_json({"key": key, "value": value}, path)
+    return value
+
+
+def eval_env_config(args: Args) -> EnvConfig:
+    return args.env.replace(object_set=args.eval_object_set, box_source=args.eval_box_source)
+
+
+def references(args: Args) -> dict[int, float]:
+    """The reference's steps per evaluation seed (cached; NaN where it fails)."""
+    config = eval_env_config(args)
+    key = {"env": dataclasses.asdict(config), "episodes": args.eval_episodes}
+
+    def compute():
+        env = make_env(config)
+        try:
+            return reference_table(env, eval_seeds(args.eval_episodes))
+        finally:
+            env.close()
+
+    value = cached(
+        os.path.join(args.out_dir, f"reference_{args.eval_object_set}_{args.eval_box_source}.json"), key, compute
+    )
+    return {int(k): math.nan if v is None else v for k, v in value.items()}
+
+
+def evaluate_policy(args: Args, name: str, **kwargs) -> dict:
+    """The summary of a policy on the evaluation episodes (explore → dqn when given a checkpoint)."""
+    env = make_env(eval_env_config(args))
+    try:
+        policy = make_policy(name, env, **kwargs)
+        episodes = evaluate(env, policy, eval_seeds(args.eval_episodes), references=references(args), desc=name)
+    finally:
+        env.close()
+    return {"summary": summarize(episodes), "episodes": episodes}
+
+
+def run_seed(args: Args, seed: int):
+    run_dir = os.path.join(args.out_dir, args.preset)
+    eval_path = os.path.join(run_dir, f"seed{seed}", "eval.json")
+    if os.path.exists(eval_path):
+        return
+    train_args = dataclasses.replace(
+        dqn.PRESETS[args.preset][1],
+        env=args.env,
+        seed=seed,
+        episodes=args.episodes,
+        explore=True,
+        run_dir=run_dir,
+        run_name=f"seed{seed}",
+    )
+    checkpoint = dqn.train(train_args)["checkpoint"]
+    result = evaluate_policy(args, "explore", then="dqn", checkpoint=checkpoint, seed=seed)
+    save_json({"eval_env": dataclasses.asdict(eval_env_config(args)), **result}, eval_path)
+
+
+def report(args: Args) -> str:
+    run_dir = os.path.join(args.out_dir, args.preset)
+    rows, summaries = [], []
+    header = (
+        "| run | training s | training success, last 10 | success | success at end | focus held | SPL "
+        "| steps to success |"
+    )
+    for seed_dir in sorted(os.listdir(run_dir)) if os.path.isdir(run_dir) else []:
+        path = os.path.join(run_dir, seed_dir)
+        if not os.path.exists(os.path.join(path, "eval.json")):
+            continue
+        history = read_json(os.path.join(path, "history.json"))
+        summary = read_json(os.path.join(path, "eval.json"))["summary"]
+        summaries.append(summary)
+        last10 = np.mean([h["success"] for h in history["history"][-10:]])
+        rows.append(f"| {args.preset} {seed_dir} | {history['seconds']:.0f} | {last10:.2f} | " + cells(summary) + " |")
+    lines = [header, "|" + "---|" * 8, *rows]
+    if summaries:
+        means = {k: spread([s[k] for s in summaries]) for k in COLUMNS}
+        lines.append(
+            f"| **{args.preset}: mean ± std over {len(summaries)} seeds** | | | " + " | ".join(means.values()) + " |"
+        )
+        worst = min(summaries, key=lambda s: s["success"])
+        lines.append(f"| {args.preset}: worst seed (by success) | | | " + cells(worst) + " |")
+    servo = os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}.json")
+    if os.path.exists(servo):
+        lines.append("| servo (scripted) | | | " + cells(read_json(servo)["value"]["summary"]) + " |")
+    table = "\n".join(lines)
+    note = (
+        f"\n\n({args.eval_episodes} evaluation episodes per seed from 1,000,000, {args.eval_object_set} objects, "
+        f"{args.eval_box_source} box; focus held over the successful episodes; in the mean row, focus held and steps "
+        "to success are over the seeds where they exist)\n"
+    )
+    with open(os.path.join(args.out_dir, f"{args.preset}_table.md"), "w") as f:
+        f.write(table + note)
+    return table
+
+
+def cells(summary: dict) -> str:
+    values = [summary[k] for k in COLUMNS]
+    return " | ".join(
+        "–" if v is None or math.isnan(v) else f"{v:.2f}" if k != "steps_to_success" else f"{v:.1f}"
+        for k, v in zip(COLUMNS, values)
+    )
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    if args.preset not in dqn.PRESETS:
+        raise ValueError(f"preset={args.preset!r} is not one of: {', '.join(dqn.PRESETS)}")
+    if not args.report_only:
+        key = {"env": dataclasses.asdict(eval_env_config(args)), "episodes": args.eval_episodes}
+        cached(
+            os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}.json"),
+            key,
+            lambda: evaluate_policy(args, "servo"),
+        )
+        for seed in args.seeds:
+            run_seed(args, seed)
+    print(report(args))
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
