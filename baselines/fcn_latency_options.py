@@ -20,6 +20,7 @@ import warnings
 from collections import defaultdict
 from dataclasses import dataclass
 
+import benchmark_fcn  # a sibling script: this runs as `python baselines/fcn_latency_options.py`
 import numpy as np
 import onnxruntime
 import torch
@@ -84,19 +85,10 @@ def ort_scene_mask(model, scene, features, level=None, threads: int = 1, free_ba
 
 
 def time_interleaved(calls: dict, repeats: int, block: int = 10) -> dict[str, np.ndarray]:
-    """Milliseconds per call of each of `calls`, timed in alternating blocks (the same load for each)."""
-    times = defaultdict(list)
+    """Milliseconds per call of each of `calls` in inference mode, timed in alternating blocks (the same load
+    for each): `benchmark_fcn.time_interleaved`."""
     with torch.inference_mode():
-        for fn in calls.values():
-            for _ in range(10):
-                fn()
-        for _ in range(max(1, repeats // block)):
-            for name, fn in calls.items():
-                for _ in range(block):
-                    start = time.perf_counter()
-                    fn()
-                    times[name].append(1000 * (time.perf_counter() - start))
-    return {name: np.array(t) for name, t in times.items()}
+        return {name: 1000 * t for name, t in benchmark_fcn.time_interleaved(calls, repeats, block).items()}
 
 
 def print_table(title: str, times: dict[str, np.ndarray], baseline: str | None = None):
