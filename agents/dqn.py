@@ -55,7 +55,7 @@ import tyro
 import tyro.extras
 from tqdm import tqdm
 
-from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, box_array, num_actions
+from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, ServoPolicy, box_array, num_actions
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.directions import action_names
 from mani_active_vision.envs import EnvConfig, make_env
@@ -108,6 +108,11 @@ class Args:
     evaluation runs the env as it is)"""
     success_bonus: float = 0.0
     """added to the reward of the step that first reaches success in an episode (not in the paper)"""
+    demo_episodes: int = 0
+    """the first this many of the training episodes are acted by the scripted servo (after the exploration's
+    hand-over, where the DQN would act), its transitions stored as the learner's: no seed starts without
+    having seen success (demonstrations in the replay buffer, as in DQfD, without its supervised loss; not in
+    the paper)"""
     hold_reward: float = 0.0
     """added to the reward of every later step in success: time in success pays, so that a learner whose
     episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
@@ -306,6 +311,8 @@ def train(args: Args, progress: bool = True) -> dict:
         target_network = q_network  # bootstrap from the online network itself
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
     policy = ExplorePolicy(env, then=learner) if args.explore else learner
+    servo = ServoPolicy(env)
+    demonstrator = ExplorePolicy(env, then=servo) if args.explore else servo
     buffer = ReplayBuffer(args.buffer_size, state_dim)
     window = NStepWindow(args.n_step, args.gamma)
     learner_reward = LearnerReward(args, env.unwrapped.success_fraction)
@@ -319,14 +326,19 @@ def train(args: Args, progress: bool = True) -> dict:
         for episode in bar:
             learner.epsilon = linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, episode)
             obs, info = env.reset(seed=args.seed * TRAIN_SEED_STRIDE + episode)
-            policy.reset(obs, info)
+            demo = episode < args.demo_episodes
+            actor = demonstrator if demo else policy
+            actor.reset(obs, info)
+            learner.reset(obs, info)
             trajectory.start(info)
             learner_reward.reset(info)
             losses, learner_steps, done = [], 0, False
             while not done:
-                learner_acts = bool(policy.update(obs)[0]) if args.explore else True
+                learner_acts = bool(actor.update(obs)[0]) if args.explore else True
                 state = learner.state(obs)[0]
-                action = policy.act(obs, info)
+                action = actor.act(obs, info)
+                if demo:
+                    learner.last_action[:] = action  # the state's last direction is the actor's
                 next_obs, reward, terminated, truncated, info = env.step(action)
                 trajectory.append(reward, info)
                 terminated = bool(terminated[0]) or (args.end_at_success and bool(first_env(info, "success")))
@@ -363,6 +375,7 @@ def train(args: Args, progress: bool = True) -> dict:
                     "episode": episode,
                     "epsilon": learner.epsilon,
                     "learner_steps": learner_steps,
+                    "demo": demo,
                     "td_loss": float(np.mean(losses)) if losses else math.nan,
                     **metrics,
                 }
@@ -407,10 +420,15 @@ HOLD = {**SHAPED, "end_at_success": False, "hold_reward": 0.2}
 """The options of the `hold` preset: `shaped`, but training episodes go on past success and every later step
 in success earns `hold_reward` (docs/control.md)."""
 
+DEMO = {"demo_episodes": 10}
+"""Added to a preset: the scripted servo acts the first 10 of its 100 training episodes (docs/control.md)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
     "hold": ("shaped, but episodes go on past success and time in success pays", Args(**HOLD)),
+    "shaped_demo": ("shaped, the servo acting its first 10 training episodes", Args(**SHAPED, **DEMO)),
+    "hold_demo": ("hold, the servo acting its first 10 training episodes", Args(**HOLD, **DEMO)),
 }
 
 if __name__ == "__main__":

@@ -298,3 +298,19 @@ def test_evaluate_script_writes_focus_held_to_its_json(tmp_path):
         assert episode["focus_held"] is None or 0 < episode["focus_held"] <= 1
     held = [e["focus_held"] for e in result["episodes"] if e["focus_held"] is not None]
     assert result["summary"]["focus_held"] == (pytest.approx(np.mean(held)) if held else None)
+
+
+def test_servo_demonstrations_fill_the_buffer_before_the_dqn_acts(tmp_path):
+    args = dqn.Args(
+        **dqn.SHAPED,
+        demo_episodes=1,
+        env=EnvConfig(max_episode_steps=40),
+        episodes=2,
+        learning_starts=20,
+        run_dir=str(tmp_path),
+    )
+    result = dqn.train(args, progress=False)
+    first, second = result["history"]
+    assert first["demo"] and not second["demo"]
+    assert first["learner_steps"] > 0  # the servo's steps after the hand-over are stored as the learner's
+    assert result["transitions"] == 2 * (first["learner_steps"] + second["learner_steps"])  # mirrored too
