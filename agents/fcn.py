@@ -39,6 +39,11 @@ CHECKPOINT_FORMAT = "mani_active_vision.fcn/1"
 RUNTIMES = ("auto", "onnxruntime", "torch")
 
 
+TARGET_POOLINGS = ("max", "masked")
+TARGET_BACKGROUND = 128 / 255 - 0.5
+"""The target image's background after `normalize_images`: the task paints every non-target pixel grey 128."""
+
+
 @dataclass(frozen=True)
 class FCNConfig:
     channels: tuple[int, int, int] = (16, 32, 64)
@@ -51,16 +56,41 @@ class FCNConfig:
     """0: the last transposed convolution gives the class scores; > 0: it gives this many features, a 3×3
     convolution of the scene at full resolution is added to them (sharper edges on small targets) and a
     3×3 convolution gives the scores"""
+    target_pooling: str = "max"
+    """how the target's features become one vector per depth: "max" (the paper's): global max over the whole
+    target image; "masked": mean and max over the target's own pixels only (the image's non-grey pixels, as
+    the prototypes of SG-One and PANet), and the cosine similarity of every scene feature to the mean (one
+    more channel into each fusion)"""
+    shape_kernel: int = 0
+    """0: none; k > 0: the target's features over its bounding box, resampled to k×k, are a per-target kernel
+    cross-correlated channel by channel with the scene's features at 1/4 and 1/8 (as in Siamese trackers):
+    the response is high where the scene's features have the target's spatial layout, which a pooled vector
+    cannot express. The box normalises scale: the kernel covers the target whatever its size in the image."""
+    presence_head: bool = False
+    """an image-level "target in view" score from the deepest fused features, trained on target-absent frames;
+    `predict` empties the mask where it is below `presence_threshold`"""
+    presence_threshold: float = 0.5
+    """presence probability under which `predict` reports the target absent (with `presence_head`)"""
+
+    def __post_init__(self):
+        if self.target_pooling not in TARGET_POOLINGS:
+            raise ValueError(f"target_pooling={self.target_pooling!r} is not one of: {', '.join(TARGET_POOLINGS)}")
+        if self.shape_kernel < 0 or not 0 < self.presence_threshold < 1:
+            raise ValueError(
+                f"shape_kernel={self.shape_kernel} must be >= 0 and presence_threshold={self.presence_threshold} "
+                "in (0, 1)"
+            )
 
 
 def _conv(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(c_in, c_out, 3, stride, 1), nn.ReLU(inplace=True))
 
 
-def _fuse(channels: int) -> nn.Sequential:
-    """1×1 convolutions over [scene features, tiled target features]."""
+def _fuse(channels: int, inputs: int) -> nn.Sequential:
+    """1×1 convolutions over [scene features, tiled target features, (similarity, correlation)]: `inputs`
+    channels -> `channels`."""
     return nn.Sequential(
-        nn.Conv2d(2 * channels, channels, 1),
+        nn.Conv2d(inputs, channels, 1),
         nn.ReLU(inplace=True),
         nn.Conv2d(channels, channels, 1),
         nn.ReLU(inplace=True),
@@ -81,7 +111,7 @@ class OneShotFCN(nn.Module):
                 nn.Sequential(_conv(c2, c3, 2), _conv(c3, c3)),
             ]
         )
-        self.fuse = nn.ModuleList([_fuse(c1), _fuse(c2), _fuse(c3)])
+        self.fuse = nn.ModuleList([_fuse(c, self._fuse_inputs(c, depth)) for depth, c in enumerate(config.channels)])
         self.up3 = nn.ConvTranspose2d(c3, c2, 4, 2, 1)  # 1/8 -> 1/4
         self.up2 = nn.ConvTranspose2d(c2, c1, 4, 2, 1)  # 1/4 -> 1/2
         f = config.full_res_channels
@@ -89,6 +119,8 @@ class OneShotFCN(nn.Module):
         if f:
             self.full_res = _conv(3, f)
             self.head = nn.Conv2d(f, 2, 3, 1, 1)
+        if config.presence_head:
+            self.presence = nn.Sequential(nn.Linear(2 * c3, 32), nn.ReLU(inplace=True), nn.Linear(32, 1))
         self._cached_target: tuple | None = None  # (weights' key, target, its features): `predict`'s cache
         self._runtime_cache: tuple | None = None  # (weights' key, {shapes: ONNX Runtime session}): fcn_runtime's
 
@@ -102,21 +134,62 @@ class OneShotFCN(nn.Module):
             features.append(images)
         return features
 
+    def _fuse_inputs(self, channels: int, depth: int) -> int:
+        """Channels into depth `depth`'s fusion: the scene's, the target's vector (2x for "masked": mean and
+        max), the similarity map ("masked") and the shape kernel's response (at 1/4 and 1/8)."""
+        masked = self.config.target_pooling == "masked"
+        correlated = self.config.shape_kernel and depth > 0
+        return channels * (3 if masked else 2) + masked + (channels if correlated else 0)
+
     def target_features(self, target: torch.Tensor) -> list[torch.Tensor]:
-        """The target's features at the three depths, global-max-pooled: (N, C, 1, 1) each."""
-        return [t.amax((2, 3), keepdim=True) for t in self.encode(target)]
+        """What the scene is matched against, as a flat list of tensors (the ONNX graph's inputs): one vector
+        (N, C or 2C, 1, 1) per depth; with `shape_kernel` k, then a kernel (N, C, k, k) for 1/4 and for 1/8."""
+        features = self.encode(target)
+        if self.config.target_pooling == "max":
+            vectors = [t.amax((2, 3), keepdim=True) for t in features]
+        else:
+            pixels = (target - TARGET_BACKGROUND).abs().amax(1, keepdim=True).gt(0.5 / 255).float()
+            pixels = torch.where(pixels.flatten(1).any(1).view(-1, 1, 1, 1), pixels, torch.ones_like(pixels))
+            vectors = []
+            for t in features:
+                weight = F.adaptive_avg_pool2d(pixels, t.shape[2:])  # share of target pixels under each cell
+                mean = (t * weight).sum((2, 3), keepdim=True) / weight.sum((2, 3), keepdim=True).clamp_min(1e-6)
+                vectors.append(torch.cat([mean, (t * (weight > 0)).amax((2, 3), keepdim=True)], 1))
+        if not self.config.shape_kernel:
+            return vectors
+        grid = _box_grid(target, 2 * self.config.shape_kernel)
+        kernels = [F.avg_pool2d(F.grid_sample(t, grid, align_corners=False), 2) for t in features[1:]]
+        return vectors + kernels
 
     def segment(self, scene: torch.Tensor, target_features: list[torch.Tensor]) -> torch.Tensor:
         """Class scores (N, 2, H, W) of scenes given their targets' `target_features`."""
+        return self.segment_with_presence(scene, target_features)[0]
+
+    def segment_with_presence(
+        self, scene: torch.Tensor, target_features: list[torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(class scores (N, 2, H, W), presence logits (N,) or None without `presence_head`)."""
+        vectors = target_features[:3]
+        kernels = [None, *target_features[3:]] if self.config.shape_kernel else [None] * 3
         fused = []
-        for fuse, s, t in zip(self.fuse, self.encode(scene), target_features):
-            fused.append(fuse(torch.cat([s, t.expand(-1, -1, *s.shape[2:])], 1)))
+        for fuse, s, t, kernel in zip(self.fuse, self.encode(scene), vectors, kernels):
+            parts = [s, t.expand(-1, -1, *s.shape[2:])]
+            if self.config.target_pooling == "masked":
+                mean = t[:, : s.shape[1]]
+                parts.append(F.cosine_similarity(s, mean.expand_as(s), dim=1, eps=1e-6).unsqueeze(1))
+            if kernel is not None:
+                parts.append(_correlate(s, kernel))
+            fused.append(fuse(torch.cat(parts, 1)))
         x = F.relu(self.up3(fused[2]) + fused[1])
         x = F.relu(self.up2(x) + fused[0])
         x = self.up1(x)
         if self.config.full_res_channels:
             x = self.head(F.relu(x + self.full_res(scene)))
-        return x
+        presence = None
+        if self.config.presence_head:
+            deepest = fused[2]
+            presence = self.presence(torch.cat([deepest.amax((2, 3)), deepest.mean((2, 3))], 1))[:, 0]
+        return x, presence
 
     def forward(self, scene: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         return self.segment(scene, self.target_features(target))
@@ -139,9 +212,12 @@ class OneShotFCN(nn.Module):
             self._cached_target = cached = (weights, target.clone(), self.target_features(target))
         return cached[2]
 
-    def scene_scores(self, scene_rgb: torch.Tensor, target_features: list[torch.Tensor]) -> torch.Tensor:
-        """Class scores (N, 2, H, W) of checked uint8 scenes (N, H, W, 3) given their targets' features, as
-        `predict` computes them: normalise, resize to the training size, segment, scores back to the scene's."""
+    def scene_outputs(
+        self, scene_rgb: torch.Tensor, target_features: list[torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(class scores (N, 2, H, W), presence logits (N,) or None) of checked uint8 scenes (N, H, W, 3) given
+        their targets' features, as `predict` computes them: normalise, resize to the training size, segment,
+        scores back to the scene's size."""
         height, width = scene_rgb.shape[1:3]
         scene = normalize_images(scene_rgb)
         size = self.config.image_size
@@ -150,21 +226,41 @@ class OneShotFCN(nn.Module):
                 scene = F.avg_pool2d(scene, height // size)
             else:
                 scene = F.interpolate(scene, size=(size, size), mode="area" if height > size else "bilinear")
-        scores = self.segment(scene, target_features)
+        scores, presence = self.segment_with_presence(scene, target_features)
         if (height, width) != (size, size):
             scores = F.interpolate(scores, size=(height, width), mode="bilinear")
-        return scores
+        return scores, presence
 
-    def scene_mask(self, scene_rgb: torch.Tensor, target_features: list[torch.Tensor]) -> torch.Tensor:
-        """`predict`'s mask (N, H, W) bool (before `largest_component`) from `scene_scores`. Tensor operations
-        only: this is the graph that `fcn_runtime` exports for ONNX Runtime."""
-        scores = self.scene_scores(scene_rgb, target_features)
-        return scores[:, 1] > scores[:, 0]
+    def scene_scores(self, scene_rgb: torch.Tensor, target_features: list[torch.Tensor]) -> torch.Tensor:
+        """The class scores of `scene_outputs`."""
+        return self.scene_outputs(scene_rgb, target_features)[0]
 
-    @torch.inference_mode()
+    def scene_mask(
+        self, scene_rgb: torch.Tensor, target_features: list[torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """`predict`'s (mask (N, H, W) bool before `largest_component`, presence probability (N,)) from
+        `scene_outputs`: with `presence_head`, the mask is empty where the presence is under the threshold;
+        without it, the presence is 1 where the mask is not empty. Tensor operations only: this is the graph
+        that `fcn_runtime` exports for ONNX Runtime."""
+        scores, presence = self.scene_outputs(scene_rgb, target_features)
+        mask = scores[:, 1] > scores[:, 0]
+        if presence is None:
+            return mask, mask.flatten(1).any(1).float()
+        presence = presence.sigmoid()
+        return mask & (presence >= self.config.presence_threshold).view(-1, 1, 1), presence
+
     def predict(self, scene_rgb, target_rgb, largest_component: bool = False, runtime: str = "auto") -> torch.Tensor:
         """Target mask (N, H, W) bool of uint8 scenes (N, H, W, 3) given uint8 target images (N, h, w, 3);
         with `largest_component`, only each mask's largest connected region is kept (`boxes.largest_component`).
+        Empty where the model judges the target absent (`predict_with_presence` gives that score too)."""
+        return self.predict_with_presence(scene_rgb, target_rgb, largest_component, runtime)[0]
+
+    @torch.inference_mode()
+    def predict_with_presence(
+        self, scene_rgb, target_rgb, largest_component: bool = False, runtime: str = "auto"
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(`predict`'s mask, presence probability (N,)): the presence head's "target in view" probability, or
+        for a model without one 1.0 where the mask is not empty and 0.0 where it is.
 
         `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graph exported from the current
         weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float rounding); "auto" (default)
@@ -186,14 +282,50 @@ class OneShotFCN(nn.Module):
             target = F.interpolate(target, size=(self.config.target_size,) * 2, mode="bilinear")
         weights = self._weights_key()
         features = self._target_features_cached(target, weights)
-        mask = None
+        outputs = None
         if runtime == "onnxruntime" or (
             runtime == "auto" and device.type == "cpu" and not self.training and fcn_runtime.available()
         ):
-            mask = fcn_runtime.scene_mask(self, scene, features, weights, required=runtime == "onnxruntime")
-        if mask is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
-            mask = self.scene_mask(scene.to(device), features)
-        return keep_largest_component(mask) if largest_component else mask
+            outputs = fcn_runtime.scene_mask(self, scene, features, weights, required=runtime == "onnxruntime")
+        if outputs is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
+            outputs = self.scene_mask(scene.to(device), features)
+        mask, presence = outputs
+        return (keep_largest_component(mask) if largest_component else mask), presence
+
+
+def _box_grid(target: torch.Tensor, size: int) -> torch.Tensor:
+    """A `grid_sample` grid (N, size, size, 2) over each target image's bounding box of non-grey pixels (the
+    whole image if it has none)."""
+    pixels = (target - TARGET_BACKGROUND).abs().amax(1).gt(0.5 / 255)  # (N, h, w)
+    height, width = pixels.shape[1:]
+    rows, cols = pixels.any(2), pixels.any(1)
+    steps = [torch.arange(n, dtype=target.dtype, device=target.device) for n in (height, width)]
+    boxes = []
+    for hits, step, n in ((cols, steps[1], width), (rows, steps[0], height)):
+        empty = ~hits.any(1)
+        low = torch.where(hits, step, torch.full_like(step, n)).amin(1)
+        high = torch.where(hits, step, torch.full_like(step, -1)).amax(1) + 1
+        low, high = torch.where(empty, 0, low), torch.where(empty, n, high)
+        boxes.append((low / n * 2 - 1, high / n * 2 - 1))  # normalised [-1, 1] edges
+    (x0, x1), (y0, y1) = boxes
+    t = (torch.arange(size, dtype=target.dtype, device=target.device) + 0.5) / size
+    xs = x0[:, None] + (x1 - x0)[:, None] * t  # (N, size)
+    ys = y0[:, None] + (y1 - y0)[:, None] * t
+    return torch.stack([xs[:, None, :].expand(-1, size, -1), ys[:, :, None].expand(-1, -1, size)], -1)
+
+
+def _correlate(scene: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
+    """Per-sample, per-channel cross-correlation of scene features (N, C, H, W) with kernels (N, C, k, k), odd
+    or even k, same size out, divided by k²: a sum of shifted products, so that one graph serves any batch size
+    (a grouped convolution would fix the batch in its group count)."""
+    k = kernel.shape[-1]
+    height, width = scene.shape[2:]
+    padded = F.pad(scene, ((k - 1) // 2, k // 2, (k - 1) // 2, k // 2))
+    out = 0
+    for i in range(k):
+        for j in range(k):
+            out = out + padded[:, :, i : i + height, j : j + width] * kernel[:, :, i : i + 1, j : j + 1]
+    return out / (k * k)
 
 
 def uint8_images(images, name: str = "images") -> torch.Tensor:

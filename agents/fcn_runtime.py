@@ -6,7 +6,8 @@ Runtime's CPU kernels, with convolution + ReLU fused, run the same graph 2-4x fa
 the source of truth: the graph is exported from `OneShotFCN.scene_mask` (the scene's part of `predict`:
 normalise, resize, segment, scores back, mask) with the model's current weights, lazily, once per input
 shape, and rebuilt when any weight changes (`OneShotFCN._weights_key`, which keys the target cache too).
-The target's features stay torch's, cached per target image, and are inputs of the graph.
+The target's features stay torch's, cached per target image, and are inputs of the graph; its outputs are
+the mask and the presence probability.
 
 The exporter is torch's TorchScript-based one (`dynamo=False`): ~0.1 s per export, where the torch.export
 one takes ~8 s and needs onnxscript besides. It is deprecated; if a later torch drops it, `predict` under
@@ -41,7 +42,7 @@ class _SceneMask(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, scene: torch.Tensor, *target_features: torch.Tensor) -> torch.Tensor:
+    def forward(self, scene: torch.Tensor, *target_features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.model.scene_mask(scene, list(target_features))
 
 
@@ -60,8 +61,8 @@ def export_graph(model: nn.Module, scene_shape: tuple, feature_shapes: list[tupl
             graph,
             dynamo=False,
             input_names=["scene", *names],
-            output_names=["mask"],
-            dynamic_axes={name: {0: "batch"} for name in ["scene", *names, "mask"]} if free_batch else None,
+            output_names=["mask", "presence"],
+            dynamic_axes={name: {0: "batch"} for name in ["scene", *names, "mask", "presence"]} if free_batch else None,
         )
     return graph.getvalue()
 
@@ -84,8 +85,9 @@ def build_session(model: nn.Module, scene_shape: tuple, feature_shapes: list[tup
 
 def scene_mask(
     model: nn.Module, scene: torch.Tensor, target_features: list[torch.Tensor], weights: tuple, required: bool
-) -> torch.Tensor | None:
-    """`model.scene_mask(scene, target_features)` run by ONNX Runtime; `weights` is `model._weights_key()`.
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """`model.scene_mask(scene, target_features)` (mask, presence) run by ONNX Runtime; `weights` is
+    `model._weights_key()`.
 
     Sessions are cached on the model per input shape and torch's thread count, all dropped when `weights`
     changes. When the export or session fails: raise if `required`, else warn once and return None (the
@@ -111,4 +113,5 @@ def scene_mask(
         return None
     feeds = {"scene": np.ascontiguousarray(scene.cpu().numpy())}
     feeds.update((f"target_features_{i}", t.cpu().numpy()) for i, t in enumerate(target_features))
-    return torch.from_numpy(sessions[key].run(None, feeds)[0])
+    mask, presence = sessions[key].run(None, feeds)
+    return torch.from_numpy(mask), torch.from_numpy(presence)

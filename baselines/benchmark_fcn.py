@@ -94,16 +94,16 @@ def env_step_ms(size: int, repeats: int) -> float:
 
 
 class TimedSegmenter:
-    """`model` with `predict` run on `runtime` and timed: the segmenter BoxState calls at every step."""
+    """`model` with `predict_with_presence` run on `runtime` and timed: what BoxState calls at every step."""
 
     def __init__(self, model, runtime: str):
         self.model, self.runtime, self.seconds = model, runtime, []
 
-    def predict(self, *args, **kwargs):
+    def predict_with_presence(self, *args, **kwargs):
         start = time.perf_counter()
-        mask = self.model.predict(*args, runtime=self.runtime, **kwargs)
+        outputs = self.model.predict_with_presence(*args, runtime=self.runtime, **kwargs)
         self.seconds.append(time.perf_counter() - start)
-        return mask
+        return outputs
 
 
 def in_episode_ms(model, size: int, runtimes: list[str], steps: int, block: int = 5) -> dict[str, np.ndarray]:

@@ -34,6 +34,8 @@ class Args:
     """scenes per .npz shard"""
     workers: int = 1
     """rendering processes (shards are spread over them; the data do not depend on it)"""
+    view_mode_probs: tuple[float, ...] = SegmentationDataConfig.view_mode_probs
+    """probabilities of the view modes (segmentation_data.VIEW_MODES: target, distractor, anywhere, lookalike)"""
 
 
 def main(args: Args):
@@ -44,6 +46,7 @@ def main(args: Args):
         views_per_scene=args.views_per_scene,
         image_size=args.image_size,
         seed=args.seed,
+        view_mode_probs=args.view_mode_probs,
     )
     manifest = collect_segmentation_data(
         args.out_dir, config, scenes_per_shard=args.scenes_per_shard, workers=args.workers

@@ -49,7 +49,9 @@ class Args:
 
 def rendered_frame(size: int) -> tuple[np.ndarray, np.ndarray]:
     """One wrist view aimed at the target (unseen objects, held-out seed) and the target's image, uint8."""
-    config = SegmentationDataConfig(object_set="unseen", views_per_scene=1, image_size=size, view_mode_probs=(1, 0, 0))
+    config = SegmentationDataConfig(
+        object_set="unseen", views_per_scene=1, image_size=size, view_mode_probs=(1, 0, 0, 0)
+    )
     env = make_data_env(config)
     data = render_scene_views(env, 900001, np.random.default_rng(0), config)
     env.close()
@@ -81,7 +83,9 @@ def ort_scene_mask(model, scene, features, level=None, threads: int = 1, free_ba
     graph = fcn_runtime.export_graph(model, tuple(scene.shape), [tuple(f.shape) for f in features], free_batch)
     session = onnxruntime.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
     names = [i.name for i in session.get_inputs()]
-    return lambda s, f: torch.from_numpy(session.run(None, dict(zip(names, [s.numpy(), *(t.numpy() for t in f)])))[0])
+    return lambda s, f: tuple(
+        torch.from_numpy(out) for out in session.run(None, dict(zip(names, [s.numpy(), *(t.numpy() for t in f)])))
+    )
 
 
 def time_interleaved(calls: dict, repeats: int, block: int = 10) -> dict[str, np.ndarray]:

@@ -5,9 +5,14 @@ class is weighted by the square root of its inverse pixel frequency in the train
 full inverse frequency over-predicts the target. Added to it (`--iou-loss-weight`): a soft-IoU loss in which
 every sample with the target counts the same, whatever the target's size (the per-sample IoU we report is
 dominated by small, far targets, which pixelwise cross-entropy barely weighs). Half the samples are mirrored
-left-right (`--flip`). The defaults are the recipe of the shipped weights (`scripts/make_fcn.sh`).
+left-right (`--flip`). With `--presence-head`, a binary cross-entropy on "target in view" (frames with at least
+`--presence-min-pixels` target pixels are positives, frames without any are negatives, slivers in between are
+left out) is added (`--presence-loss-weight`). `--extra-train-dirs` adds data sets (e.g. rollout frames from
+`baselines/collect_rollout_frames.py`) to the training set, area-downsampled to the training size when they
+are larger. `scripts/make_fcn.sh` gives the recipe of the shipped weights.
 
-Validation (train objects, other scenes) every epoch; the best epoch by validation target IoU is saved
+Validation (train objects, other scenes) every epoch; the best epoch by validation target IoU minus the false-
+positive rate on target-absent samples (`--select-by`) is saved
 with its config to RUN_DIR/best.pt, every epoch to RUN_DIR/last.pt (with the optimiser: `--resume`
 continues from it); curves to RUN_DIR/curves.png.
 
@@ -19,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import matplotlib
 
@@ -44,7 +49,7 @@ from mani_active_vision.agents.fcn import (
     summarize_counts,
 )
 from mani_active_vision.json_io import save_json
-from mani_active_vision.segmentation_data import load_segmentation_data
+from mani_active_vision.segmentation_data import load_segmentation_data, load_segmentation_sets
 
 
 @dataclass
@@ -69,12 +74,34 @@ class Args:
     """encoder channels at 1/2, 1/4, 1/8 of the image side"""
     full_res_channels: int = 8
     """features of the full-resolution skip (`FCNConfig.full_res_channels`; 0: none)"""
+    target_pooling: str = "max"
+    """`FCNConfig.target_pooling`: max (the paper's) | masked (prototypes over the target's pixels + similarity)"""
+    shape_kernel: int = 0
+    """`FCNConfig.shape_kernel`: 0 none; k: the target's k×k kernel cross-correlated at 1/4 and 1/8"""
+    presence_head: bool = False
+    """`FCNConfig.presence_head`: an image-level "target in view" score that gates the mask"""
+    presence_loss_weight: float = 1.0
+    """weight of the presence head's binary cross-entropy"""
+    presence_min_pixels: int = 8
+    """a training frame with at least this many target pixels is "in view" for the presence head (fewer but
+    some: left out of that loss)"""
+    extra_train_dirs: list[str] = field(default_factory=list)
+    """more data sets added to DATA_DIR/train (e.g. rollout frames), downsampled to the training size"""
+    select_by: str = "iou_minus_fp"
+    """the saved best epoch: highest validation iou_minus_fp (target IoU - FP rate) | target_iou"""
     seed: int = 0
     """torch and shuffling seed"""
     threads: int = 1
     """torch threads (the machine is shared)"""
     resume: bool = False
     """continue from RUN_DIR/last.pt"""
+
+
+def selection_score(metrics: dict, select_by: str) -> float:
+    """The validation score the best epoch is chosen by (see `Args.select_by`)."""
+    if select_by == "target_iou":
+        return metrics["target_iou"]
+    return metrics["target_iou"] - metrics["false_positive_rate"]
 
 
 def plot_curves(history: list[dict], path: str, loss_name: str = "weighted cross-entropy") -> None:
@@ -104,7 +131,9 @@ def main(args: Args):
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     os.makedirs(args.run_dir, exist_ok=True)
-    train = load_segmentation_data(os.path.join(args.data_dir, "train"))
+    if args.select_by not in ("iou_minus_fp", "target_iou"):
+        raise ValueError(f"select_by={args.select_by!r} is not one of: iou_minus_fp, target_iou")
+    train = load_segmentation_sets([os.path.join(args.data_dir, "train"), *args.extra_train_dirs])
     val = load_segmentation_data(os.path.join(args.data_dir, "val"))
     image_size = train["scene"].shape[1]
     target_share = float(train["mask"].mean())
@@ -120,6 +149,9 @@ def main(args: Args):
             image_size=image_size,
             target_size=train["target"].shape[1],
             full_res_channels=args.full_res_channels,
+            target_pooling=args.target_pooling,
+            shape_kernel=args.shape_kernel,
+            presence_head=args.presence_head,
         )
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
@@ -131,13 +163,23 @@ def main(args: Args):
         optimizer.load_state_dict(checkpoint["optimizer"])
         history = checkpoint["history"]
         start_epoch = len(history)
-        best_iou = max(h["val"]["target_iou"] for h in history)
+        best_iou = max(selection_score(h["val"], args.select_by) for h in history)
         print(f"resumed from {last_path} after epoch {start_epoch}")
     print(f"parameters: {sum(p.numel() for p in model.parameters())}")
 
-    def loss_fn(scores: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def loss_fn(scene: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        scores, presence = model.segment_with_presence(scene, model.target_features(target))
         loss = F.cross_entropy(scores, mask.long(), weight=weights)
-        return loss + args.iou_loss_weight * soft_iou_loss(scores, mask) if args.iou_loss_weight else loss
+        if args.iou_loss_weight:
+            loss = loss + args.iou_loss_weight * soft_iou_loss(scores, mask)
+        if presence is not None:
+            pixels = mask.flatten(1).sum(1)
+            labelled = (pixels == 0) | (pixels >= args.presence_min_pixels)
+            if labelled.any():
+                in_view = (pixels[labelled] > 0).float()
+                presence_loss = F.binary_cross_entropy_with_logits(presence[labelled], in_view)
+                loss = loss + args.presence_loss_weight * presence_loss
+        return loss
 
     num_train = len(train["mask"])
     steps_per_epoch = math.ceil(num_train / args.batch_size)
@@ -159,7 +201,7 @@ def main(args: Args):
                 scene, target, mask = flip_horizontally(
                     scene, target, mask, where=torch.from_numpy(rng.random(len(idx)) < 0.5)
                 )
-            loss = loss_fn(model(scene, target), mask)
+            loss = loss_fn(scene, target, mask)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -170,7 +212,8 @@ def main(args: Args):
         with torch.inference_mode():
             val_losses = [
                 loss_fn(
-                    model(images_to_input(val["scene"][i : i + 128]), images_to_input(val["target"][i : i + 128])),
+                    images_to_input(val["scene"][i : i + 128]),
+                    images_to_input(val["target"][i : i + 128]),
                     torch.from_numpy(val["mask"][i : i + 128]),
                 ).item()
                 for i in range(0, len(val["mask"]), 128)
@@ -192,17 +235,19 @@ def main(args: Args):
             f"pixel acc {metrics['pixel_accuracy']:.4f} FP rate {metrics['false_positive_rate']:.3f} ({train_seconds:.0f} s)"
         )
         save_checkpoint(last_path, model, optimizer=optimizer.state_dict(), history=history, args=asdict(args))
-        if metrics["target_iou"] > best_iou:
-            best_iou = metrics["target_iou"]
+        if selection_score(metrics, args.select_by) > best_iou:
+            best_iou = selection_score(metrics, args.select_by)
             save_checkpoint(
                 best_path, model, epoch=epoch + 1, val=metrics, args=asdict(args), class_weights=weights.tolist()
             )
         save_json(history, os.path.join(args.run_dir, "history.json"))
-        loss_name = "weighted cross-entropy" + (
-            f" + {args.iou_loss_weight:g} × soft IoU" if args.iou_loss_weight else ""
+        loss_name = (
+            "weighted cross-entropy"
+            + (f" + {args.iou_loss_weight:g} × soft IoU" if args.iou_loss_weight else "")
+            + (f" + {args.presence_loss_weight:g} × presence BCE" if args.presence_head else "")
         )
         plot_curves(history, os.path.join(args.run_dir, "curves.png"), loss_name)
-    print(f"best val target IoU {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")
+    print(f"best val {args.select_by} {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")
 
 
 if __name__ == "__main__":

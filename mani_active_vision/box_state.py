@@ -3,8 +3,10 @@
 `source="ground_truth"` takes the box from the wrist camera's segmentation (needs a `segmentation` obs);
 `source="fcn"` from a segmenter (the one-shot FCN, `mani_active_vision.agents.fcn`) on the wrist view and the
 target image (needs an `rgb` obs), keeping the mask's largest connected region only (docs/design.md §10).
-After every observation `last_mask` holds the mask the box came from and `last_observation` the
-observation it was computed from, so that a recorder outside this wrapper logs both with the box.
+After every observation `last_mask` holds the mask the box came from, `last_presence` the probability that the
+target is in view (the FCN's presence score where it has one; else 1 where the mask is not empty) and
+`last_observation` the observation they were computed from, so that a recorder outside this wrapper logs them
+with the box. A segmenter that judges the target absent returns an empty mask: the box is zeros, "not seen".
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ class BoxState(gym.ObservationWrapper):
 
     Batched ManiSkill envs give a torch tensor (N, 4 or 7); a numpy env (`CPUGymWrapper`) gives (4 or 7,).
     `last_mask`: (N, H, W) bool torch tensor, the target mask of the latest observation (ground truth or FCN).
-    `segmenter`: for `source="fcn"`, a model with `predict(scene_rgb, target_rgb, largest_component=True)`
-    -> (N, H, W) bool, e.g. `agents.fcn.load_pretrained()` (`envs.make_env` passes it).
+    `segmenter`: for `source="fcn"`, a model with `predict_with_presence(scene_rgb, target_rgb,
+    largest_component=True)` -> ((N, H, W) bool, (N,) float), e.g. `agents.fcn.load_pretrained()`
+    (`envs.make_env` passes it).
     """
 
     def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False, segmenter=None):
@@ -43,6 +46,7 @@ class BoxState(gym.ObservationWrapper):
             )
         self.segmenter = segmenter
         self.last_mask: torch.Tensor | None = None
+        self.last_presence: torch.Tensor | None = None
         self.last_observation: dict | None = None
         self.source = source
         self.with_ee_pos = with_ee_pos
@@ -57,7 +61,7 @@ class BoxState(gym.ObservationWrapper):
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
         self.last_observation = obs
         if self.source == "fcn":
-            mask = self.segmenter.predict(
+            mask, presence = self.segmenter.predict_with_presence(
                 batch(obs["sensor_data"]["hand_camera"]["rgb"]),
                 batch(obs["extra"]["target_image"]),
                 largest_component=True,
@@ -65,7 +69,8 @@ class BoxState(gym.ObservationWrapper):
         else:
             seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])
             mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]
-        self.last_mask = mask
+            presence = mask.flatten(1).any(1).float()
+        self.last_mask, self.last_presence = mask, presence
         state = mask_to_box(mask)
         if self.with_ee_pos:
             state = torch.cat([state, base.agent.controller.target_pos.to(state.device)], -1)

@@ -6,7 +6,10 @@ colour or shape come from the task) the camera is put at `views_per_scene` poses
 same family of poses the controller reaches: looking outward, 60° down), spread over the reachable set:
 - "target":     aimed at a point near the target (it is in view in most of these, sometimes cut by the border);
 - "distractor": aimed near another object (the target is often absent: negatives that look alike);
-- "anywhere":   a random reachable pose.
+- "anywhere":   a random reachable pose;
+- "lookalike":  aimed near a distractor that shares the target's colour or shape (else any distractor), from
+                any height: hard negatives (as in DaSiamRPN), the views where a model that matches colour
+                alone marks the wrong object.
 The arm is set straight to the pose's joint positions (exact closed-form IK), so no physics steps are
 needed. Deterministic by seed: scene k is reset with `seed + k` and its poses come from `(seed, k)`.
 
@@ -33,7 +36,7 @@ from mani_active_vision.objects import OBJECT_SETS
 from mani_active_vision.robots.iiwa import CAMERA_PITCH
 from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik
 
-VIEW_MODES = ("target", "distractor", "anywhere")
+VIEW_MODES = ("target", "distractor", "anywhere", "lookalike")
 
 
 @dataclass(frozen=True)
@@ -45,8 +48,8 @@ class SegmentationDataConfig:
     """side of the wrist view (the env's `hand_camera` width = height)"""
     num_objects: int = 5
     seed: int = 0
-    view_mode_probs: tuple[float, float, float] = (0.65, 0.2, 0.15)
-    """probabilities of the VIEW_MODES"""
+    view_mode_probs: tuple[float, ...] = (0.65, 0.2, 0.15, 0.0)
+    """probabilities of the VIEW_MODES (the first shipped weights' data: no "lookalike" views)"""
     height_range: tuple[float, float] = (0.12, 1.0)
     """camera (link 7) height range (m), sampled log-uniformly (close-ups are what zooming in sees);
     the controller's workspace is 0.10-1.05"""
@@ -73,11 +76,12 @@ def make_data_env(config: SegmentationDataConfig) -> gym.Env:
 
 
 def sample_camera_position(
-    rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig
+    rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig, lookalikes: tuple[int, ...] = ()
 ) -> tuple[np.ndarray, str, np.ndarray]:
     """A reachable camera (link 7) position (3,), its view mode and its joint positions (7,).
 
-    `object_xy` (K, 2): the objects' floor positions, row 0 the target.
+    `object_xy` (K, 2): the objects' floor positions, row 0 the target; `lookalikes`: the rows of the
+    distractors that share the target's colour or shape (what "lookalike" views aim at).
     """
     controller = OrbitEEPosControllerConfig  # its workspace bounds (class defaults)
     mode = VIEW_MODES[rng.choice(len(VIEW_MODES), p=config.view_mode_probs)]
@@ -86,7 +90,12 @@ def sample_camera_position(
         if mode == "anywhere":
             radius, azimuth = rng.uniform(controller.min_radius, controller.max_radius), rng.uniform(-math.pi, math.pi)
         else:
-            k = 0 if mode == "target" else rng.integers(1, len(object_xy)) if len(object_xy) > 1 else 0
+            if mode == "target" or len(object_xy) == 1:
+                k = 0
+            elif mode == "lookalike" and lookalikes:
+                k = lookalikes[rng.integers(len(lookalikes))]
+            else:
+                k = rng.integers(1, len(object_xy))
             aim = object_xy[k] + rng.normal(0, config.aim_jitter * z, size=2)
             # The optical axis, pitched down by CAMERA_PITCH, meets the floor z / tan(pitch) in front of the camera.
             radius = np.linalg.norm(aim) - z / math.tan(CAMERA_PITCH)
@@ -114,9 +123,11 @@ def render_scene_views(
     target_image = obs["extra"]["target_image"][0].cpu().numpy()
     object_xy = np.stack([obj.pose.p[0, :2].cpu().numpy() for obj in base.objects])
     target_id = base.target_seg_id[0]
+    names, colors = base.object_names[0], base.object_colors[0]
+    lookalikes = tuple(k for k in range(1, len(names)) if names[k] == names[0] or np.allclose(colors[k], colors[0]))
     scenes, masks, modes = [], [], []
     for _ in range(config.views_per_scene):
-        _, mode, qpos = sample_camera_position(rng, object_xy, config)
+        _, mode, qpos = sample_camera_position(rng, object_xy, config, lookalikes)
         base.agent.robot.set_qpos(torch.as_tensor(qpos)[None])
         base._hand_images = None  # the task caches one render per step; this is a new view
         images = base._hand_camera_images()
@@ -224,3 +235,29 @@ def load_segmentation_data(data_dir: str) -> dict[str, np.ndarray]:
         manifest = json.load(f)
     parts = [dict(np.load(os.path.join(data_dir, shard["file"]))) for shard in manifest["shards"]]
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+
+def load_segmentation_sets(data_dirs: list[str]) -> dict[str, np.ndarray]:
+    """`scene`, `target` and `mask` of several data sets (e.g. aimed views and rollout frames) concatenated, at
+    the first set's scene size: a set with larger scenes (a whole multiple) is area-downsampled to it, as
+    `OneShotFCN.predict` downsamples such frames, and its masks by majority of each block."""
+    parts = [load_segmentation_data(data_dirs[0])]
+    size, target_size = parts[0]["scene"].shape[1], parts[0]["target"].shape[1]
+    for data_dir in data_dirs[1:]:
+        data = load_segmentation_data(data_dir)
+        factor = data["scene"].shape[1] // size
+        if data["scene"].shape[1] != factor * size or data["target"].shape[1] != target_size:
+            raise ValueError(
+                f"{data_dir!r}: scenes {data['scene'].shape[1]}² and targets {data['target'].shape[1]}² do not fit "
+                f"{data_dirs[0]!r}'s {size}² (or a whole multiple) and {target_size}²"
+            )
+        if factor > 1:
+            blocks = (len(data["scene"]), size, factor, size, factor)
+            scene = data["scene"].reshape(*blocks, 3).astype(np.float32).mean((2, 4))
+            data = dict(
+                scene=np.round(scene).astype(np.uint8),
+                target=data["target"],
+                mask=data["mask"].reshape(blocks).mean((2, 4)) >= 0.5,
+            )
+        parts.append(data)
+    return {key: np.concatenate([p[key] for p in parts]) for key in ("scene", "target", "mask")}

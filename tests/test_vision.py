@@ -30,7 +30,9 @@ from mani_active_vision.segmentation_data import (
     SegmentationDataConfig,
     collect_segmentation_data,
     load_segmentation_data,
+    load_segmentation_sets,
     render_scene_views,
+    sample_camera_position,
 )
 
 SHIPPED_UNSEEN_IOU = 0.85
@@ -39,7 +41,7 @@ this batch (0.934 and 0.988 on two other 3-scene batches; 0.936 on the 1,000-sam
 docs/vision.md), less a margin for the batch's small size."""
 
 
-def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15), image_size=64):
+def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15, 0.0), image_size=64):
     config = SegmentationDataConfig(
         object_set=object_set, views_per_scene=views, view_mode_probs=mode_probs, image_size=image_size
     )
@@ -112,7 +114,7 @@ def test_flips_and_soft_iou_loss():
 
 def test_a_few_training_steps_lower_the_loss():
     torch.manual_seed(0)
-    data = _render(scenes=(1, 2), views=6, mode_probs=(1.0, 0.0, 0.0))
+    data = _render(scenes=(1, 2), views=6, mode_probs=(1.0, 0.0, 0.0, 0.0))
     scene, target = images_to_input(data["scene"]), images_to_input(data["target"])
     labels = torch.from_numpy(data["mask"]).long()
     weights = class_weights(float(data["mask"].mean()))
@@ -130,7 +132,7 @@ def test_a_few_training_steps_lower_the_loss():
 
 def test_shipped_weights_segment_unseen_objects():
     model = load_pretrained()
-    data = _render(object_set="unseen", scenes=(900001, 900002, 900003), views=8, mode_probs=(1.0, 0.0, 0.0))
+    data = _render(object_set="unseen", scenes=(900001, 900002, 900003), views=8, mode_probs=(1.0, 0.0, 0.0, 0.0))
     metrics = summarize_counts(
         mask_counts(model.predict(data["scene"], data["target"]), torch.from_numpy(data["mask"]))
     )
@@ -157,7 +159,7 @@ def _assert_masks_agree(fast, plain, margin):
 @pytest.mark.parametrize("image_size", [64, 128])
 def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size):
     model = load_pretrained()
-    data = _render("unseen", scenes=(900004, 900005), views=6, mode_probs=(0.65, 0.2, 0.15), image_size=image_size)
+    data = _render("unseen", scenes=(900004, 900005), views=6, mode_probs=(0.65, 0.2, 0.15, 0.0), image_size=image_size)
     plain = model.predict(data["scene"], data["target"], runtime="torch")
     margin = _torch_margin(model, data["scene"], data["target"])
     assert torch.equal(plain, margin > 0)
@@ -175,7 +177,7 @@ def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size)
 def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
     torch.manual_seed(0)
     model = load_pretrained()
-    data = _render(scenes=(4,), views=2, mode_probs=(1.0, 0.0, 0.0))
+    data = _render(scenes=(4,), views=2, mode_probs=(1.0, 0.0, 0.0, 0.0))
     scene, target = data["scene"], data["target"]
 
     def fast_mask():  # ONNX Runtime's mask, checked against the torch model's current weights
@@ -208,6 +210,99 @@ def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
     assert all(not torch.equal(a, b) for a, b in zip(masks, masks[1:]))  # each change moved the mask
     copied = copy.deepcopy(model)  # sessions are not copied; the copy builds its own
     assert copied._runtime_cache is None and torch.equal(copied.predict(scene, target), masks[-1])
+
+
+DISCRIMINATING = dict(full_res_channels=4, target_pooling="masked", shape_kernel=3, presence_head=True)
+
+
+def _target_with_box(rows, cols, color=(200, 40, 30)):
+    """A target image as the task makes it: grey 128 but for the target's pixels (here a rectangle)."""
+    target = np.full((1, 64, 64, 3), 128, np.uint8)
+    target[0, rows[0] : rows[1], cols[0] : cols[1]] = color
+    return target
+
+
+def test_discriminating_model_runs_the_same_on_onnxruntime_and_its_presence_gates_the_mask():
+    torch.manual_seed(0)
+    model = OneShotFCN(FCNConfig(channels=(8, 8, 16), **DISCRIMINATING)).eval()
+    rng = np.random.default_rng(3)
+    scene = rng.integers(0, 256, (3, 64, 64, 3), dtype=np.uint8)
+    target = np.repeat(_target_with_box((10, 30), (20, 50)), 3, 0)
+    margin = _torch_margin(model, scene, target)
+    with torch.no_grad():  # about half the pixels on the target side of the scores, whatever the init gave
+        model.head.bias[1] -= margin.median()
+    margin = _torch_margin(model, scene, target)
+    for bias, expected in ((20.0, margin > 0), (-20.0, torch.zeros_like(margin, dtype=torch.bool))):
+        with torch.no_grad():
+            model.presence[-1].bias.fill_(bias)
+        for runtime in ("torch", "onnxruntime"):
+            mask, presence = model.predict_with_presence(scene, target, runtime=runtime)
+            assert presence.shape == (3,) and ((presence > 0.99) if bias > 0 else (presence < 0.01)).all()
+            _assert_masks_agree(mask, expected, margin)
+            assert torch.equal(model.predict(scene, target, runtime=runtime), mask)
+    assert (margin > 0).float().mean() > 0.2  # the open gate let a real mask through
+    with pytest.raises(ValueError, match="target_pooling='mean' is not one of: max, masked"):
+        FCNConfig(target_pooling="mean")
+
+
+def test_masked_pooling_and_the_shape_kernel_read_the_targets_pixels_only():
+    from mani_active_vision.agents.fcn import _box_grid
+
+    target = images_to_input(_target_with_box((10, 30), (20, 50)))
+    grid = _box_grid(target, 6)[0]  # x then y, normalised to [-1, 1] over the 64-pixel sides
+    assert grid[..., 0].min() > 20 / 32 - 1 and grid[..., 0].max() < 50 / 32 - 1
+    assert grid[..., 1].min() > 10 / 32 - 1 and grid[..., 1].max() < 30 / 32 - 1
+    assert torch.allclose(_box_grid(images_to_input(_target_with_box((0, 0), (0, 0))), 2)[0].abs(), torch.tensor(0.5))
+    torch.manual_seed(0)
+    model = OneShotFCN(FCNConfig(channels=(8, 8, 16), **DISCRIMINATING)).eval()
+    target = images_to_input(_target_with_box((0, 32), (0, 32)))  # the top-left quarter, whole cells at 1/2
+    with torch.inference_mode():
+        vectors, encoded = model.target_features(target), model.encode(target)[0]
+    inside = encoded[:, :, :16, :16]
+    assert torch.allclose(vectors[0][:, :8, 0, 0], inside.mean((2, 3)), atol=1e-6)  # mean and max of its cells
+    assert torch.equal(vectors[0][:, 8:, 0, 0], inside.amax((2, 3)))
+    assert not torch.allclose(vectors[0][:, :8, 0, 0], encoded.mean((2, 3)))  # not of the grey around it
+    assert len(vectors) == 5 and vectors[3].shape == (1, 8, 3, 3) and vectors[4].shape == (1, 16, 3, 3)
+
+
+def test_lookalike_views_aim_at_the_lookalikes():
+    config = SegmentationDataConfig(view_mode_probs=(0, 0, 0, 1), height_range=(0.2, 0.4))
+    object_xy = np.array([[0.6, 0.0], [0.0, 0.6], [-0.6, 0.0]])  # target ahead, distractors left and behind
+    rng = np.random.default_rng(0)
+    azimuths = []
+    for _ in range(40):
+        pos, mode, _ = sample_camera_position(rng, object_xy, config, lookalikes=(2,))
+        azimuths.append(np.arctan2(pos[1], pos[0]))
+        assert mode == "lookalike"
+    assert np.mean(np.abs(np.cos(azimuths) + 1) < 0.2) > 0.8  # behind the robot, towards slot 2
+    with pytest.raises(ValueError, match="must be 4 probabilities"):
+        SegmentationDataConfig(view_mode_probs=(0.65, 0.2, 0.15))
+
+
+def test_data_sets_of_larger_frames_are_downsampled_to_the_first_sets_size(tmp_path):
+    import json
+
+    for name, size in (("small", 8), ("large", 16)):
+        rng = np.random.default_rng(size)
+        mask = np.zeros((2, size, size), bool)
+        mask[:, : size // 2] = True
+        arrays = dict(
+            scene=rng.integers(0, 256, (2, size, size, 3), dtype=np.uint8),
+            target=np.zeros((2, 4, 4, 3), np.uint8),
+            mask=mask,
+        )
+        (tmp_path / name).mkdir()
+        np.savez(tmp_path / name / "shard_00000.npz", **arrays)
+        (tmp_path / name / "manifest.json").write_text(json.dumps(dict(shards=[dict(file="shard_00000.npz")])))
+        if name == "large":
+            large = arrays
+    data = load_segmentation_sets([str(tmp_path / "small"), str(tmp_path / "large")])
+    assert data["scene"].shape == (4, 8, 8, 3) and data["mask"].shape == (4, 8, 8)
+    block = large["scene"][0, :2, :2].reshape(-1, 3).astype(float).mean(0)
+    assert np.array_equal(data["scene"][2, 0, 0], np.round(block).astype(np.uint8))
+    assert data["mask"][2, :4].all() and not data["mask"][2, 4:].any()
+    with pytest.raises(ValueError, match="do not fit"):
+        load_segmentation_sets([str(tmp_path / "large"), str(tmp_path / "small")])
 
 
 def test_runtime_choice_and_fallback_to_torch():

@@ -1,8 +1,8 @@
 """Frames from rollouts of the project's policies: the distribution control acts on, to judge vision by.
 
 The FCN's own test sets are poses aimed at the target; a policy sees something else (the sweep's far,
-empty views, close-ups, look-alikes in view without the target). Each source runs a policy on the
-ground-truth box from a start pose, and every `frame_stride`-th observation is kept with:
+empty views, close-ups, look-alikes in view without the target). Each source runs a policy on a box
+(`SOURCES`) from a start pose, and every `frame_stride`-th observation is kept with:
 - `scene` (H, W, 3) uint8, `target` (h, w, 3) uint8 and `mask` (H, W) bool, as in `segmentation_data`, so
   that `baselines/eval_fcn.py` evaluates these sets like the others;
 - `objects` (H, W) uint8: what each pixel shows: `FLOOR` (0), object slot k as k + 1 (slot 0 the target),
@@ -29,13 +29,16 @@ from mani_active_vision.evaluation.rollout import run_episode
 from mani_active_vision.json_io import save_json
 
 SOURCES = {
-    "servo_sky": ("servo", "sky"),
-    "explore_servo_sky": ("explore", "sky"),
-    "random_sky": ("random", "sky"),
-    "random_search": ("random", "search"),
+    "servo_sky": ("servo", "sky", "ground_truth"),
+    "explore_servo_sky": ("explore", "sky", "ground_truth"),
+    "random_sky": ("random", "sky", "ground_truth"),
+    "random_search": ("random", "search", "ground_truth"),
+    "servo_fcn_sky": ("servo", "sky", "fcn"),
 }
-"""source name -> (policy, start pose): the scripted servo, the paper's exploration handing over to it, and
-random directions from both start poses (all on the ground-truth box)."""
+"""source name -> (policy, start pose, box source): the scripted servo, the paper's exploration handing over
+to it, and random directions from both start poses, on the ground-truth box; and the servo on the shipped
+FCN's box, which approaches whatever the FCN marks (hard negatives mined by the model: close-ups of the
+look-alikes it mistakes for the target). The test set uses the first four."""
 RELATIONS = ("target", "identical twin", "same shape", "same colour", "other object")
 FLOOR, ROBOT = 0, 255
 
@@ -52,8 +55,11 @@ class RolloutFramesConfig:
     """the wrist camera's side"""
     seed: int = 400_000
     """episode k of source j is reset with seed + 1000 j + k (held out: no FCN or DQN seed is here)"""
-    sources: tuple[str, ...] = tuple(SOURCES)
+    sources: tuple[str, ...] = tuple(SOURCES)[:4]
     """which of SOURCES to run"""
+    fcn_weights: str = ""
+    """the FCN of the sources on its box ("": the shipped one; the recipe mines with the paper's,
+    agents/weights/fcn_paper.pt, so that the data do not depend on the weights they train)"""
 
     def __post_init__(self):
         unknown = [s for s in self.sources if s not in SOURCES]
@@ -125,9 +131,16 @@ def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: 
     os.makedirs(out_dir, exist_ok=True)
     start, shards = time.time(), []
     for j, name in enumerate(config.sources):
-        policy_name, start_pose = SOURCES[name]
+        policy_name, start_pose, box_source = SOURCES[name]
         source = list(SOURCES).index(name)
-        env = make_env(EnvConfig(object_set=config.object_set, start_pose=start_pose, image_size=config.image_size))
+        env_config = EnvConfig(
+            object_set=config.object_set,
+            start_pose=start_pose,
+            image_size=config.image_size,
+            box_source=box_source,
+            fcn_weights=config.fcn_weights if box_source == "fcn" else "",
+        )
+        env = make_env(env_config)
         try:
             policy = make_policy(policy_name, env, **({"then": "servo"} if policy_name == "explore" else {}))
             parts = []
