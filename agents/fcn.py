@@ -8,8 +8,17 @@ deepest fused map, adding the shallower fused maps as skip connections, to two c
 (background, target); optionally (`FCNConfig.full_res_channels`, the shipped weights use 8) a convolution
 of the scene at full resolution is added before a last 3×3 convolution, for sharper edges.
 
+That design matches colour more than shape: on frames from rollouts it marks a same-colour distractor on
+most frames without the target (docs/vision.md). The discriminating configuration (docs/design.md §10)
+keeps the layout and changes what the scene is matched against: `target_pooling="masked"` pools the
+target's features over its own pixels (mean and max, the target image's background is a known grey) and
+adds each scene feature's cosine similarity to that mean; `shape_kernel` cross-correlates a kernel of the
+target's features over its bounding box with the scene's deeper features; `presence_head` scores "target in
+view" for the whole image and `predict` empties the mask where that score is low.
+
     model = load_pretrained()                          # agents/weights/fcn.pt, ready in eval mode
     mask = model.predict(scene_rgb, target_rgb)        # uint8 (N, H, W, 3) each -> bool (N, H, W)
+    mask, presence = model.predict_with_presence(scene_rgb, target_rgb)   # and (N,) "in view" probability
 
 `predict` takes a scene of any size whose sides are multiples of 8: a size other than the one the model
 was trained at (`config.image_size`) is resized to it and the scores are resized back (bilinear), so the
@@ -35,6 +44,9 @@ from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
 WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn.pt")
+PAPER_WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn_paper.pt")
+"""The paper's design (global max pooling, no presence score), kept to compare with and to mine hard
+negatives with (`scripts/make_fcn.sh`)."""
 CHECKPOINT_FORMAT = "mani_active_vision.fcn/1"
 RUNTIMES = ("auto", "onnxruntime", "torch")
 
@@ -195,9 +207,11 @@ class OneShotFCN(nn.Module):
         return self.segment(scene, self.target_features(target))
 
     def _weights_key(self) -> tuple:
-        """Which weights the model holds: any in-place change of a parameter or buffer (an optimiser step,
-        `load_state_dict`) bumps its `_version`, a replaced one has a new address. Keys `predict`'s caches."""
-        return tuple((p.data_ptr(), p._version) for p in itertools.chain(self.parameters(), self.buffers()))
+        """Which weights (and config: a new `presence_threshold`) the model holds: any in-place change of a
+        parameter or buffer (an optimiser step, `load_state_dict`) bumps its `_version`, a replaced one has a
+        new address. Keys `predict`'s caches."""
+        params = itertools.chain(self.parameters(), self.buffers())
+        return (self.config, *((p.data_ptr(), p._version) for p in params))
 
     def _target_features_cached(self, target: torch.Tensor, weights: tuple) -> list[torch.Tensor]:
         """`target_features`, reusing the last call's while the target images and the weights (`_weights_key`)

@@ -16,6 +16,7 @@ and the same metrics per source policy.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -44,6 +45,9 @@ class Args:
     """a picture of examples per data set: samples with the target and false positives (none: skip)"""
     examples: int = 8
     """examples of each kind per data set in that picture"""
+    presence_threshold: float | None = None
+    """for a model with a presence head: the presence probability under which the mask is emptied (default:
+    the checkpoint's)"""
 
 
 SIZE_BINS = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1, 1.01)
@@ -141,9 +145,12 @@ def main(args: Args):
     torch.set_num_threads(1)
     weights = args.weights or WEIGHTS_PATH
     model, checkpoint = load_checkpoint(weights)
+    if args.presence_threshold is not None:
+        model.config = dataclasses.replace(model.config, presence_threshold=args.presence_threshold)
     lines = [
         f"FCN `{weights}` (trained at {model.config.image_size}², epoch {checkpoint.get('epoch')})"
-        + (", largest connected component kept" if args.largest_component else ""),
+        + (", largest connected component kept" if args.largest_component else "")
+        + (f", presence threshold {model.config.presence_threshold}" if model.config.presence_head else ""),
         "",
         "| data set | objects | size | samples (with target) | pixel acc | target IoU | pooled IoU | FP rate (absent) | box error | miss rate | IoU (target ≥1%) | IoU (≥20 px) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
