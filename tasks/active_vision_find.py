@@ -39,12 +39,13 @@ import torch
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
-from mani_skill.utils.building.ground import build_ground
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Pose
 
 from mani_active_vision.boxes import target_stats
 from mani_active_vision.brdf_lut import supply_brdf_lut
+from mani_active_vision.culling import cull_for
+from mani_active_vision.floor import build_floor
 from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, object_set
 from mani_active_vision.robots.iiwa import IiwaWristCam
 
@@ -174,7 +175,7 @@ class ActiveVisionFindEnv(BaseEnv):
         super()._load_agent(options, sapien.Pose())
 
     def _load_scene(self, options: dict):
-        self.ground = build_ground(self.scene)
+        self.ground = build_floor(self.scene)
         models = object_set(self.object_set)
         slots = [[] for _ in range(self.num_objects)]
         copies, bottoms, self.object_names, self.object_colors = [], [], [], []
@@ -297,14 +298,20 @@ class ActiveVisionFindEnv(BaseEnv):
         super().set_state_dict(state, env_idx)
 
     # ------------------------------------------------------------------ sensing
+    def _capture(self, name: str, rgb: bool) -> dict:
+        """Render sensor `name`, skipping the bodies out of its view (`mani_active_vision.culling`: the same
+        images), and read back its segmentation and, with `rgb`, its colour."""
+        camera = self._sensors[name]
+        bodies = [] if self.gpu_sim_enabled else self.scene.sub_scenes[0].render_system.render_bodies
+        with cull_for(camera.camera._render_cameras[0], bodies):
+            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+            camera.capture()
+        return camera.get_obs(rgb=rgb, depth=False, position=False, segmentation=True)
+
     def _hand_camera_images(self) -> dict:
         """The wrist camera's rgb and segmentation, rendered once per step (reward and obs share it)."""
         if self._hand_images is None:
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            camera = self._sensors["hand_camera"]
-            camera.capture()
-            rgb = self.obs_mode_struct.visual.rgb
-            self._hand_images = camera.get_obs(rgb=rgb, depth=False, position=False, segmentation=True)
+            self._hand_images = self._capture("hand_camera", rgb=self.obs_mode_struct.visual.rgb)
         return self._hand_images
 
     def _get_obs_sensor_data(self, apply_texture_transforms: bool = True) -> dict:
@@ -319,10 +326,7 @@ class ActiveVisionFindEnv(BaseEnv):
     def _render_target_image(self) -> torch.Tensor:
         """Photograph the target's copy in the studio once per episode; non-target pixels grey."""
         if self._target_image_stale.any():
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            camera = self._sensors["target_camera"]
-            camera.capture()
-            images = camera.get_obs(rgb=True, depth=False, position=False, segmentation=True)
+            images = self._capture("target_camera", rgb=True)
             alone = images["segmentation"][..., 0] == self.target_copy.per_scene_id[:, None, None]
             image = torch.where(alone[..., None], images["rgb"], torch.full_like(images["rgb"], 128))
             stale = self._target_image_stale

@@ -1,0 +1,56 @@
+"""View culling for SAPIEN's rasteriser: hide, for one capture, the render bodies a camera cannot see.
+
+SAPIEN hands the renderer every visible body for every camera; on the software renderer (lavapipe) each
+body's triangles are transformed and clipped even when all of them fall outside the image. The wrist
+camera never sees most of the robot that carries it (~15,000 triangles) nor most of the floor
+(`mani_active_vision.floor`), and skipping them is most of what a frame costs at 128² (docs/speed.md).
+A body is hidden only when its bounding box lies wholly on the outer side of one of the camera's six view
+planes (near, far and the four sides, a pixel wider): then none of its triangles can reach a pixel,
+so the images are the same as without culling.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+
+import numpy as np
+import sapien
+
+_CORNERS = np.array(list(itertools.product((0, 1), repeat=3)))  # which of (min, max) each box corner takes per axis
+
+
+def outside_view(camera: sapien.render.RenderCameraComponent, boxes: np.ndarray) -> np.ndarray:
+    """Which of the world-space boxes (N, 2, 3) (min and max corners) lie wholly outside `camera`'s view (N,)."""
+    corners = boxes[:, _CORNERS, np.arange(3)]  # (N, 8, 3)
+    extrinsic = camera.get_extrinsic_matrix()  # world -> camera, OpenCV axes: x right, y down, z forward
+    x, y, z = np.moveaxis(corners @ extrinsic[:, :3].T + extrinsic[:, 3], -1, 0)
+    (fx, _, cx), (_, fy, cy), _ = camera.get_intrinsic_matrix()
+    width, height = camera.width, camera.height  # with a pixel of margin on every side below
+    inside = np.stack(
+        [
+            z - camera.near,
+            camera.far - z,
+            fx * x + (cx + 1) * z,  # u = fx x / z + cx >= -1
+            (width + 1 - cx) * z - fx * x,  # u <= width + 1
+            fy * y + (cy + 1) * z,
+            (height + 1 - cy) * z - fy * y,
+        ],
+        -1,
+    )  # (N, 8, 6): >= 0 on the inner side of each plane
+    return (inside < 0).all(1).any(-1)
+
+
+@contextlib.contextmanager
+def cull_for(camera: sapien.render.RenderCameraComponent, bodies: list[sapien.render.RenderBodyComponent]):
+    """Within the block, the visible ones of `bodies` outside `camera`'s view are hidden; shown again after."""
+    visible = [body for body in bodies if body.visibility > 0]
+    outside = outside_view(camera, np.stack([body.get_global_aabb_fast() for body in visible])) if visible else []
+    hidden = [(body, body.visibility) for body, out in zip(visible, outside) if out]
+    for body, _ in hidden:
+        body.visibility = 0
+    try:
+        yield
+    finally:
+        for body, visibility in hidden:
+            body.visibility = visibility
