@@ -4,10 +4,10 @@
 the task, `DiscreteDirections` and the config's box state) as a gymnasium `VectorEnv`;
 `make_vec_env(env_id, num_envs, wrappers=(...), **env_kwargs)` does the same for any registered env:
 - CPU (`backend="cpu"`, the default without CUDA): an `AsyncVectorEnv` of `num_envs` worker processes,
-  each holding one `CPUGymWrapper`-wrapped env (ManiSkill's CPU backend takes `num_envs=1` only), each with
-  its share of the cores: lavapipe's render threads and torch's are set in each worker from `num_envs` and
-  the cores (`mani_active_vision.threads`; an `LP_NUM_THREADS` the user set wins). Observations, rewards
-  and infos are numpy arrays with a leading env dimension.
+  each holding one `CPUGymWrapper`-wrapped env (ManiSkill's CPU backend takes `num_envs=1` only), with
+  lavapipe's render threads set from `num_envs` and the cores, and one torch thread
+  (`mani_active_vision.threads`; an `LP_NUM_THREADS` the user set wins). Observations, rewards and infos
+  are numpy arrays with a leading env dimension.
 - GPU (`backend="gpu"`, the default with CUDA): one ManiSkill env with `num_envs` parallel scenes on the
   GPU physics backend, in ManiSkill's `ManiSkillVectorEnv`; observations are torch tensors on the GPU.
 - Ray (`backend="ray"`, never the default; `pip install -e '.[distributed]'`): each env in a Ray actor on

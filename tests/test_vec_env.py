@@ -63,7 +63,7 @@ def test_workers_get_different_seeds_that_reproduce(pool):
 
 def test_workers_render_with_their_share_of_the_cores(pool):
     pool.reset(seed=0)
-    expected = worker_threads(2).render  # on 2 cores: 0, against lavapipe's default of one per core
+    expected = worker_threads(2).render  # on 2 cores: 1, against lavapipe's default of one per core
     for process in pool.processes:
         tasks = Path(f"/proc/{process.pid}/task")
         names = [(task / "comm").read_text() for task in tasks.iterdir()]  # lavapipe names them llvmpipe-<i>
@@ -72,10 +72,11 @@ def test_workers_render_with_their_share_of_the_cores(pool):
 
 def test_a_user_set_render_thread_count_wins(monkeypatch):
     monkeypatch.setenv("LP_NUM_THREADS", "3")
-    assert worker_threads(1, cores=8) == WorkerThreads(render=3, torch=8)
+    assert worker_threads(1, cores=8) == WorkerThreads(render=3, torch=1)
     monkeypatch.delenv("LP_NUM_THREADS")
-    assert worker_threads(1, cores=8) == WorkerThreads(render=7, torch=8)
-    assert worker_threads(4, cores=2) == WorkerThreads(render=0, torch=1)
+    assert worker_threads(1, cores=8) == WorkerThreads(render=7, torch=1)
+    assert worker_threads(2, cores=8) == WorkerThreads(render=3, torch=1)
+    assert worker_threads(4, cores=2) == WorkerThreads(render=1, torch=1)
 
 
 def _cartpole_pool(n=2):
