@@ -4,8 +4,10 @@ Wraps the methods a step calls (controller, physics, render submit, the wait for
 texture's readback, ManiSkill's texture transforms and observation assembly, the reward's segmentation
 statistics, the FCN, the wrappers) with timers that nest, and prints each phase's own time per step
 (its time minus that of the phases inside it), for the env with the ground-truth box and with the FCN's
-box (`EnvConfig(box_source="fcn")`, the agent loop: a greedy Q-network acts on the box). Resets
-(new objects every episode, as `make_env` does) are timed apart. docs/speed.md reads these figures.
+box (`EnvConfig(box_source="fcn")`, the agent loop: a Q-network acts on the box), each with the task's
+culling on and off (off: every body drawn, as before it; `ActiveVisionFindEnv.cull`), the four envs
+stepped in alternating blocks so that they share the machine's load. Resets (new objects every episode,
+as `make_env` does) are timed apart. docs/speed.md reads these figures.
 
     .venv/bin/python baselines/profile_step.py --steps 300
 """
@@ -24,6 +26,8 @@ from mani_skill.sensors.camera import Camera
 from mani_skill.utils.structs.render_camera import RenderCamera
 
 import mani_active_vision as mav
+import mani_active_vision.tasks.active_vision_find as task
+from mani_active_vision import culling
 from mani_active_vision.agents.q_network import QNetwork
 from mani_active_vision.box_state import BoxState
 
@@ -76,13 +80,10 @@ class PhaseTimer:
         self.restore.clear()
 
 
-def instrument(env, timer: PhaseTimer):
-    """Wrap the phases of one step of `env` (the project's env) and of its reset."""
+def instrument(env, timer: PhaseTimer, per_env_only: bool = False):
+    """Wrap the phases of one step of `env` (the project's env) and of its reset; `per_env_only`: the classes'
+    methods are wrapped already (by the first env's call)."""
     base = env.unwrapped
-    # a reset with new objects makes a new scene and agent: wrap their classes, not the instances
-    timer.wrap(type(base.agent), "set_action", "controller (IK, drive targets)")
-    timer.wrap(type(base.scene), "step", "physics")
-    timer.wrap(type(base.scene), "update_render", "update_render (poses to the renderer)")
     timer.wrap(base, "evaluate", "evaluate")
     timer.wrap(base, "_hand_camera_images", "wrist camera")
     timer.wrap(base, "get_obs", "get_obs (ManiSkill's observation assembly)")
@@ -97,8 +98,14 @@ def instrument(env, timer: PhaseTimer):
             if wrapper.segmenter is not None:
                 timer.wrap(wrapper.segmenter, "predict", "FCN predict")
             timer.wrap(wrapper, "observation", "BoxState")
-    mav_boxes = __import__("mani_active_vision.tasks.active_vision_find", fromlist=["target_stats"])
-    timer.wrap(mav_boxes, "target_stats", "target statistics (mask -> share, box)")
+    if per_env_only:
+        return
+    # a reset with new objects makes a new scene and agent: wrap their classes, not the instances
+    timer.wrap(type(base.agent), "set_action", "controller (IK, drive targets)")
+    timer.wrap(type(base.scene), "step", "physics")
+    timer.wrap(type(base.scene), "update_render", "update_render (poses to the renderer)")
+    timer.wrap(task, "target_stats", "target statistics (mask -> share, box)")
+    timer.wrap(culling, "outside_view", "culling: which bodies are out of view")
     timer.wrap(Camera, "capture", "render submit (take_picture)")
     # ManiSkill reads the textures in one call; time each: the first one waits for the frame
     timer.wrap(RenderCamera, "get_picture", "readbacks", method=_timed_get_picture(timer))
@@ -124,33 +131,47 @@ def _chain(env):
         env = env.env
 
 
-def profile(box_source: str, args: Args) -> tuple[dict, dict, float]:
-    """Own ms per step of each phase, own ms per reset of each phase, and steps/s with the timers on."""
-    config = mav.EnvConfig(start_pose="search", image_size=args.image_size, box_source=box_source)
-    env = mav.make_env(config)
-    policy = QNetwork(env.observation_space.shape[-1], num_actions=env.action_space.n)  # untrained: its cost only
+def profile(args: Args) -> dict:
+    """For each (box source, culling) config: own ms per step of each phase, own ms per reset, steps/s (timers
+    on). The configs' envs are stepped in alternating blocks of 10 steps, so that they share the machine's load."""
     timer = PhaseTimer()
-    instrument(env, timer)
-    obs, _ = env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    resets = 0
-    for i in range(20 + args.steps):
-        if i == 20:  # warm-up over
-            timer.own.clear()
-            resets, start = 0, time.perf_counter()
-        with torch.no_grad():
-            q = timer.run("policy (Q-network)", policy, torch.as_tensor(obs))
-        action = int(q.argmax()) if rng.random() > 0.3 else int(rng.integers(env.action_space.n))
-        obs, _, terminated, truncated, _ = timer.run("env.step", env.step, action)
-        if terminated or truncated:
-            obs, _ = timer.run("env.reset", env.reset)
-            resets += 1
-    elapsed = time.perf_counter() - start
+    runs = {}
+    for box_source in args.box_sources:
+        for cull in (False, True):
+            env = mav.make_env(mav.EnvConfig(start_pose="search", image_size=args.image_size, box_source=box_source))
+            env.unwrapped.cull = cull
+            timer.own = defaultdict(float)
+            instrument(env, timer, per_env_only=bool(runs))
+            obs, _ = env.reset(seed=0)
+            policy = QNetwork(env.observation_space.shape[-1], num_actions=env.action_space.n)  # untrained: its cost
+            runs[box_source, cull] = dict(env=env, obs=obs, policy=policy, rng=np.random.default_rng(0), resets=0)
+    for block in range(2 + args.steps // 10):
+        for run in runs.values():
+            if block == 2:  # warm-up over
+                run.update(own=defaultdict(float), resets=0, seconds=0.0)
+            timer.own = run.get("own", defaultdict(float))
+            began = time.perf_counter()
+            for _ in range(10):
+                with torch.no_grad():
+                    q = timer.run("policy (Q-network)", run["policy"], torch.as_tensor(run["obs"]))
+                explore = run["rng"].random() < 0.3
+                action = int(run["rng"].integers(run["env"].action_space.n)) if explore else int(q.argmax())
+                run["obs"], _, terminated, truncated, _ = timer.run("env.step", run["env"].step, action)
+                if terminated or truncated:
+                    run["obs"], _ = timer.run("env.reset", run["env"].reset)
+                    run["resets"] += 1
+            run["seconds"] = run.get("seconds", 0.0) + time.perf_counter() - began
     timer.undo()
-    env.close()
-    per_step = {k: 1000 * v / args.steps for k, v in timer.own.items() if k[0] != "env.reset"}
-    per_reset = {k: 1000 * v / max(resets, 1) for k, v in timer.own.items() if k[0] == "env.reset"}
-    return per_step, per_reset, args.steps / elapsed
+    results = {}
+    for key, run in runs.items():
+        run["env"].close()
+        steps = 10 * (args.steps // 10)
+        results[key] = (
+            {k: 1000 * v / steps for k, v in run["own"].items() if k[0] != "env.reset"},
+            {k: 1000 * v / max(run["resets"], 1) for k, v in run["own"].items() if k[0] == "env.reset"},
+            steps / run["seconds"],
+        )
+    return results
 
 
 def print_tree(times: dict, title: str):
@@ -163,10 +184,10 @@ def print_tree(times: dict, title: str):
 def main(args: Args):
     torch.set_num_threads(1)
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {os.cpu_count()} cores")
-    for box_source in args.box_sources:
-        per_step, per_reset, rate = profile(box_source, args)
-        print_tree(per_step, f"box_source={box_source}, {args.image_size}², one step ({rate:.0f} steps/s timed)")
-        print_tree(per_reset, f"box_source={box_source}, one reset with new objects")
+    for (box_source, cull), (per_step, per_reset, rate) in profile(args).items():
+        what = f"box_source={box_source}, {'culling' if cull else 'no culling (as before)'}"
+        print_tree(per_step, f"{what}, {args.image_size}², one step ({rate:.0f} steps/s timed)")
+        print_tree(per_reset, f"{what}, one reset with new objects")
     print(f"\nload average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

@@ -93,6 +93,9 @@ class ActiveVisionFindEnv(BaseEnv):
     studio_pos = (0.0, 0.0, -5.0)
     """Where the target's copy is photographed: below the floor, out of the wrist camera's sight."""
     max_objects = len(fixed_layout)
+    cull = True
+    """skip, in each capture, the bodies out of the camera's view (the same images; False draws them all, as
+    ManiSkill does: `baselines/profile_step.py` compares both)"""
     collect_every = 10
     """a full garbage collection at every this many new scenes on the CPU (ManiSkill: every one; see `_clear`)"""
 
@@ -324,7 +327,8 @@ class ActiveVisionFindEnv(BaseEnv):
         """Render sensor `name`, skipping the bodies out of its view (`mani_active_vision.culling`: the same
         images), and read back its segmentation and, with `rgb`, its colour."""
         camera = self._sensors[name]
-        bodies = [] if self.gpu_sim_enabled else self.scene.sub_scenes[0].render_system.render_bodies
+        culled = self.cull and not self.gpu_sim_enabled
+        bodies = self.scene.sub_scenes[0].render_system.render_bodies if culled else []
         with cull_for(camera.camera._render_cameras[0], bodies):
             self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
             camera.capture()
