@@ -6,12 +6,12 @@ camera never sees most of the robot that carries it (~15,000 triangles) nor most
 (`mani_active_vision.floor`), and skipping them is most of what a frame costs at 128² (docs/speed.md).
 A body is hidden only when its bounding box lies wholly on the outer side of one of the camera's six view
 planes (near, far and the four sides, a pixel wider): then none of its triangles can reach a pixel,
-so the images are the same as without culling.
+so the images are the same as without culling. What a camera hides stays hidden until a capture by a
+camera that sees it, or `show_all()` (the task calls it before `render()`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 
 import numpy as np
@@ -41,16 +41,29 @@ def outside_view(camera: sapien.render.RenderCameraComponent, boxes: np.ndarray)
     return (inside < 0).all(1).any(-1)
 
 
-@contextlib.contextmanager
-def cull_for(camera: sapien.render.RenderCameraComponent, bodies: list[sapien.render.RenderBodyComponent]):
-    """Within the block, the visible ones of `bodies` outside `camera`'s view are hidden; shown again after."""
-    visible = [body for body in bodies if body.visibility > 0]
-    outside = outside_view(camera, np.stack([body.get_global_aabb_fast() for body in visible])) if visible else []
-    hidden = [(body, body.visibility) for body, out in zip(visible, outside) if out]
-    for body, _ in hidden:
-        body.visibility = 0
-    try:
-        yield
-    finally:
-        for body, visibility in hidden:
+class ViewCuller:
+    """Keeps hidden the bodies outside the view of the camera culled for last. Only bodies that cross a view's
+    edge change: a change of visibility makes SAPIEN rebuild its object buffers for the next frame, and
+    hiding and showing every body around every capture cost about what the hidden triangles saved."""
+
+    def __init__(self):
+        self.hidden: dict = {}  # body -> its visibility before it was hidden
+
+    def cull(self, camera: sapien.render.RenderCameraComponent, bodies: list[sapien.render.RenderBodyComponent]):
+        """Hide those of `bodies` outside `camera`'s view, show again those of them it hid that are now inside."""
+        candidates = [body for body in bodies if body in self.hidden or body.visibility > 0]
+        if not candidates:
+            return
+        outside = outside_view(camera, np.stack([body.get_global_aabb_fast() for body in candidates]))
+        for body, out in zip(candidates, outside):
+            if out and body not in self.hidden:
+                self.hidden[body] = body.visibility
+                body.visibility = 0
+            elif not out and body in self.hidden:
+                body.visibility = self.hidden.pop(body)
+
+    def show_all(self):
+        """Show every body this culler hid (before a camera that culls nothing renders, e.g. the human view)."""
+        for body, visibility in self.hidden.items():
             body.visibility = visibility
+        self.hidden.clear()

@@ -47,7 +47,7 @@ from mani_skill.utils.structs import Actor, Pose
 
 from mani_active_vision.boxes import target_stats
 from mani_active_vision.brdf_lut import supply_brdf_lut
-from mani_active_vision.culling import cull_for
+from mani_active_vision.culling import ViewCuller
 from mani_active_vision.floor import build_floor
 from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, object_set
 from mani_active_vision.robots.iiwa import IiwaWristCam
@@ -186,6 +186,7 @@ class ActiveVisionFindEnv(BaseEnv):
         super()._load_agent(options, sapien.Pose())
 
     def _load_scene(self, options: dict):
+        self._culler = ViewCuller()
         self.ground = build_floor(self.scene)
         models = object_set(self.object_set)
         slots = [[] for _ in range(self.num_objects)]
@@ -327,12 +328,17 @@ class ActiveVisionFindEnv(BaseEnv):
         """Render sensor `name`, skipping the bodies out of its view (`mani_active_vision.culling`: the same
         images), and read back its segmentation and, with `rgb`, its colour."""
         camera = self._sensors[name]
-        culled = self.cull and not self.gpu_sim_enabled
-        bodies = self.scene.sub_scenes[0].render_system.render_bodies if culled else []
-        with cull_for(camera.camera._render_cameras[0], bodies):
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            camera.capture()
+        if self.cull and not self.gpu_sim_enabled:
+            self._culler.cull(camera.camera._render_cameras[0], self.scene.sub_scenes[0].render_system.render_bodies)
+        else:
+            self._culler.show_all()
+        self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+        camera.capture()
         return camera.get_obs(rgb=rgb, depth=False, position=False, segmentation=True)
+
+    def render(self):
+        self._culler.show_all()  # the human render cameras see everything
+        return super().render()
 
     def _hand_camera_images(self) -> dict:
         """The wrist camera's rgb and segmentation, rendered once per step (reward and obs share it)."""
