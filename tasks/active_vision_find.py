@@ -53,12 +53,12 @@ from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_
 from mani_active_vision.robots.iiwa import IiwaWristCam
 
 PLACEMENTS = ("random", "fixed")
-_NO_FORCED_COLLECTION = types.SimpleNamespace(collect=lambda generation=2: 0)
-"""stands in for the gc module in ManiSkill's `BaseEnv._clear` on the CPU (see `ActiveVisionFindEnv._clear`)"""
 START_POSES = ("sky", "search")
 OBS_MODES = ("rgb+segmentation", "rgb", "state", "state_dict", "none")
 REWARD_MODES = ("dense", "normalized_dense", "sparse", "none")
 CONTROL_MODES = ("pd_ee_delta_pos",)
+_NO_FORCED_COLLECTION = types.SimpleNamespace(collect=lambda generation=2: 0)
+"""stands in for the gc module in ManiSkill's `BaseEnv._clear` on the CPU (see `ActiveVisionFindEnv._clear`)"""
 
 
 def _check_choice(name, value, valid):
