@@ -1,197 +1,260 @@
-"""Speed of ActiveVisionFind-v0 against the paper's PyBullet environment, measured in one run (docs/design.md §12).
+"""Speed of ActiveVisionFind-v0 against the paper's PyBullet setup, everything in one run (docs/speed.md).
 
-Steps/s of: our task, one env, at 128² and 256² `rgb+segmentation` and with `state` observations; the
-PyBullet reference (`pybullet_reference.py`) at the same sizes; 1 and 2 worker processes
-(`make_vec_env`, 128² rgb+segmentation); one env with the FCN box state.
-Also time to the first observation, resets and memory growth over reconfigurations
-(`benchmark_env.py`). Ratios are to the reference measured in the same run (timings on a shared machine
-are noisy; the load average is recorded). Writes a markdown table and JSON to `--out`.
+Every rate is taken in rounds: each round steps every subject in turn for `--steps` steps, so that the
+load of a shared machine (printed with each round) falls alike on all of them, and every ratio compares
+rates taken side by side. Subjects:
+- the reference: the paper's setup rebuilt in PyBullet (`pybullet_reference.py`), at 128² and 256²;
+- our task, one env (`make_env`: new objects every episode, like the reference), 128² and 256²
+  rgb+segmentation, and with `state` observations (the reward still renders the segmentation);
+- the agent loop: the env with the FCN's box (`box_source="fcn"`) and a Q-network choosing the actions;
+- 1, 2 and 4 worker processes (`make_vec_env`, 128²) with their share of the cores (`mani_active_vision.threads`),
+  and 1 and 2 with lavapipe's default of a render thread per core (as before; `LP_NUM_THREADS` = cores).
+Then: the first env ready in a fresh process, reset times, and RSS over `--resets` resets with the same
+models (`memory_resets.py`). Writes benchmark.md and benchmark.json to `--out`.
 
-    .venv/bin/python baselines/benchmark.py     # ~5 min on an idle 2-core machine (estimated); 15 min at load 15
+    .venv/bin/python baselines/benchmark.py     # ~6 min on a 2-core machine
 """
 
 from __future__ import annotations
 
+import json
 import os
 import platform
+import subprocess
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import benchmark_env
+import gymnasium as gym
+import memory_resets
 import numpy as np
 import pybullet_reference
 import torch
 import tyro
-from tqdm import tqdm
 
 import mani_active_vision as mav
-from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.agents.q_network import QNetwork
+from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
 from mani_active_vision.json_io import save_json
+from mani_active_vision.threads import available_cores
 from mani_active_vision.vec_env import make_vec_env
 
 
 @dataclass
 class Args:
-    steps: int = 300
-    """steps per measurement (per worker for the worker pools)"""
+    rounds: int = 3
+    """rounds of interleaved measurements"""
+    steps: int = 100
+    """steps per subject per round (per worker for the worker pools)"""
     resolutions: tuple[int, ...] = (128, 256)
-    """camera image sides to compare with the reference"""
-    workers: tuple[int, ...] = (1, 2)
-    """worker-process counts for the batched measurement (128²)"""
-    reconfigures: int = 300
-    """reconfigurations for the memory measurement (0 skips it)"""
+    workers: tuple[int, ...] = (1, 2, 4)
+    """worker-process counts (128²)"""
+    default_threads_workers: tuple[int, ...] = (1, 2)
+    """worker-process counts also measured with lavapipe's default threads"""
+    resets: int = 1000
+    """resets with the same models for the memory measurement (0 skips it)"""
     gpu_envs: tuple[int, ...] = (64, 256, 1024)
     """num_envs for the GPU backend (measured only when CUDA is available)"""
     out: Path = field(default_factory=lambda: Path("outputs/benchmark"))
-    """folder for benchmark.md and benchmark.json"""
 
 
-def time_steps(env, steps: int, num_envs: int | None = None, seed: int = 0) -> float:
-    """Steps/s (summed over envs) of random directions; a vector env autoresets, a single env is reset every 100 steps."""
-    rng = np.random.default_rng(seed)
+def load() -> str:
+    return "/".join(f"{x:.1f}" for x in os.getloadavg())
+
+
+class Single:
+    """One env stepped with random directions (or a policy), reset at the end of each episode."""
+
+    def __init__(self, env, reset_every: int | None = None, policy=None):
+        self.env, self.reset_every, self.policy = env, reset_every, policy
+        self.rng = np.random.default_rng(0)
+        self.obs = env.reset(seed=0)
+        self.obs = self.obs[0] if isinstance(self.obs, tuple) else self.obs
+        self.count, self.num_envs = 0, 1
+
+    def run(self, steps: int):
+        for _ in range(steps):
+            action = int(self.rng.integers(len(mav.DIRECTIONS)))
+            if self.policy is not None and self.rng.random() > 0.1:  # the agent loop: the Q-network acts
+                with torch.no_grad():
+                    action = int(self.policy(torch.as_tensor(self.obs, dtype=torch.float32)).argmax())
+            out = self.env.step(action)
+            self.obs, self.count = out[0], self.count + 1
+            ended = out[2] or out[3] if len(out) == 5 else self.count % self.reset_every == 0
+            if ended:
+                reset = self.env.reset()
+                self.obs = reset[0] if isinstance(reset, tuple) else reset
+
+    def close(self):
+        self.env.close()
+
+
+class Pool:
+    """A vector env stepped with random directions (it resets finished episodes itself)."""
+
+    def __init__(self, env):
+        self.env, self.num_envs = env, env.num_envs
+        self.rng = np.random.default_rng(0)
+        env.reset(seed=0)
+
+    def run(self, steps: int):
+        for _ in range(steps):
+            self.env.step(self.rng.integers(len(mav.DIRECTIONS), size=self.num_envs))
+
+    def close(self):
+        self.env.close()
+
+
+def make_pool(num_workers: int, lavapipe_default: bool) -> Pool:
+    config = EnvConfig(start_pose="search", image_size=128, box_source="none")
+    if not lavapipe_default:
+        return Pool(make_vec_env(config, num_workers, backend="cpu"))
+    os.environ["LP_NUM_THREADS"] = str(available_cores())  # a user's setting: it wins over the share
+    try:
+        return Pool(make_vec_env(config, num_workers, backend="cpu"))
+    finally:
+        del os.environ["LP_NUM_THREADS"]
+
+
+def subjects(args: Args) -> dict:
+    """name -> (how to make it, reference name or None)"""
+    ours = lambda size, **kw: EnvConfig(start_pose="search", image_size=size, **kw)
+    table = {}
+    for size in args.resolutions:
+        table[f"PyBullet reference, {size}²"] = (
+            lambda size=size: Single(pybullet_reference.PyBulletReference(size), reset_every=100),
+            None,
+        )
+    for size in args.resolutions:
+        table[f"ours, 1 env, {size}² rgb+segmentation"] = (
+            lambda size=size: Single(make_env(ours(size, box_source="none"))),
+            f"PyBullet reference, {size}²",
+        )
+    table["ours, 1 env, state (128² segmentation for the reward)"] = (
+        lambda: Single(mav.DiscreteDirections(gym.make(ENV_ID, **{**ours(128).task_kwargs(), "obs_mode": "state"}))),
+        "PyBullet reference, 128²",
+    )
+    table["agent loop: 1 env, 128² + FCN box + Q-network"] = (
+        lambda: Single(make_env(ours(128, box_source="fcn")), policy=QNetwork(4)),
+        "PyBullet reference, 128²",
+    )
+    for n in args.workers:
+        table[f"ours, {n} worker(s), 128² (total)"] = (
+            lambda n=n: make_pool(n, False),
+            "ours, 1 worker(s), 128² (total)",
+        )
+    for n in args.default_threads_workers:
+        table[f"ours, {n} worker(s), lavapipe's default threads (total)"] = (
+            lambda n=n: make_pool(n, True),
+            "ours, 1 worker(s), lavapipe's default threads (total)",
+        )
+    return table
+
+
+FIRST_ENV = """
+import json, time
+start = time.perf_counter()
+import mani_active_vision as mav
+imported = time.perf_counter()
+env = mav.make_env(mav.EnvConfig(image_size=128))
+env.reset(seed=0)
+ready = time.perf_counter()
+for seed in range(20):
     env.reset(seed=seed)
-    start = time.perf_counter()
-    for i in range(steps):
-        if num_envs is None:
-            env.step(int(rng.integers(len(mav.DIRECTIONS))))
-            if (i + 1) % 100 == 0:
-                env.reset()
-        else:
-            env.step(rng.integers(len(mav.DIRECTIONS), size=num_envs))
-    return steps * (num_envs or 1) / (time.perf_counter() - start)
+new_objects = time.perf_counter()
+env.unwrapped.reconfiguration_freq = 0
+for seed in range(20):
+    env.reset(seed=seed)
+same = time.perf_counter()
+print(json.dumps(dict(import_s=imported - start, first_ready_s=ready - imported, reset_new_objects_ms=50 * (new_objects - ready),
+                      reset_ms=50 * (same - new_objects))))
+"""
 
 
-def measure_workers(num_workers: int, steps: int) -> dict:
-    start = time.perf_counter()
-    env = make_vec_env(EnvConfig(start_pose="search", image_size=128, box_source="none"), num_workers, backend="cpu")
-    env.reset(seed=0)
-    ready = time.perf_counter() - start
-    try:
-        return dict(steps_per_s=time_steps(env, steps, num_workers), pool_ready_s=ready)
-    finally:
-        env.close()
-
-
-def measure_fcn(steps: int) -> float:
-    env = make_env(EnvConfig(start_pose="search", image_size=128, box_source="fcn"))
-    try:
-        return time_steps(env, steps)
-    finally:
-        env.close()
-
-
-def measure_gpu(num_envs: int, steps: int) -> float:
-    env = make_vec_env(EnvConfig(start_pose="search", image_size=128, box_source="none"), num_envs, backend="gpu")
-    try:
-        return time_steps(env, steps, num_envs)
-    finally:
-        env.close()
+def first_env() -> dict:
+    """Import, first make + reset and reset times, in a fresh process (nothing compiled or cached yet)."""
+    out = subprocess.run([sys.executable, "-c", FIRST_ENV], capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def main(args: Args):
     torch.set_num_threads(1)
-    load_before = os.getloadavg()
-    env_args = lambda resolution: benchmark_env.Args(
-        steps=args.steps, resolution=resolution, reconfigures=args.reconfigures
-    )
-    rows = []  # (what, steps/s, reference key or None)
-    jobs = [
-        "lifecycle",
-        *[f"ours {r}" for r in args.resolutions],
-        "ours state",
-        *[f"pybullet {r}" for r in args.resolutions],
-        *[f"workers {n}" for n in args.workers],
-        "fcn",
+    lines = [
+        f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {os.cpu_count()} CPU cores "
+        f"({platform.processor() or platform.machine()}), "
+        f"{'GPU: ' + torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'}; "
+        f"{args.rounds} rounds x {args.steps} steps per subject, interleaved.",
+        "",
     ]
-    results: dict = {}
-    progress = tqdm(jobs, desc="benchmark")
-    for job in progress:
-        progress.set_postfix_str(job)
-        kind, _, value = job.partition(" ")
-        if kind == "lifecycle":  # first: the first env of the run is the one that compiles the shaders
-            results["lifecycle"] = benchmark_env.measure_lifecycle(env_args(128))
-        elif kind == "ours" and value == "state":
-            results[job] = benchmark_env.measure_steps("state", env_args(128))
-            rows.append(
-                ("ours, 1 env, state (128² segmentation for the reward)", results[job]["steps_per_s"], "pybullet 128")
-            )
-        elif kind == "ours":
-            results[job] = benchmark_env.measure_steps("rgb+segmentation", env_args(int(value)))
-            rows.append((f"ours, 1 env, {value}² rgb+segmentation", results[job]["steps_per_s"], f"pybullet {value}"))
-        elif kind == "pybullet":
-            results[job] = dict(steps_per_s=pybullet_reference.steps_per_second(int(value), args.steps))
-            rows.append((f"PyBullet reference, {value}² rgb+segmentation", results[job]["steps_per_s"], None))
-        elif kind == "workers":
-            results[job] = measure_workers(int(value), args.steps)
-            rows.append(
-                (
-                    f"ours, {value} worker process(es), 128² rgb+segmentation (total)",
-                    results[job]["steps_per_s"],
-                    "pybullet 128",
-                )
-            )
-        elif kind == "fcn":
-            results[job] = dict(steps_per_s=measure_fcn(args.steps))
-            rows.append(("ours, 1 env, 128² + FCN box state", results[job]["steps_per_s"], "pybullet 128"))
+    log = lambda text: (print(text, flush=True), lines.append(text))
+    log(f"load average (1/5/15 min) at start: {load()}")
+    start = time.perf_counter()
+    life = first_env()
+    log(
+        f"first env ready (fresh process, make + reset): {life['first_ready_s']:.2f} s after {life['import_s']:.2f} s "
+        f"of imports; reset with new objects {life['reset_new_objects_ms']:.0f} ms, without {life['reset_ms']:.0f} ms "
+        f"(load {load()})"
+    )
+    table = subjects(args)
+    made = {}
+    for name, (make, _) in table.items():
+        began = time.perf_counter()
+        made[name] = make()
+        log(f"made {name} in {time.perf_counter() - began:.1f} s (load {load()})")
+    rates = {name: [] for name in made}
+    for r in range(args.rounds):
+        for name, subject in made.items():
+            subject.run(5)  # warm-up after the other subjects ran
+            began = time.perf_counter()
+            subject.run(args.steps)
+            rates[name].append(args.steps * subject.num_envs / (time.perf_counter() - began))
+        log(f"round {r + 1}: load {load()}")
+    for subject in made.values():
+        subject.close()
+    mean = {name: float(np.mean(v)) for name, v in rates.items()}
+    lines += [
+        "",
+        "| what | steps/s (mean of rounds) | rounds' min-max | × reference (in the same rounds) |",
+        "|---|---|---|---|",
+    ]
+    for name, (_, ref) in table.items():
+        ratio = f"{np.mean(np.array(rates[name]) / np.array(rates[ref])):.2f}× {ref}" if ref else "reference"
+        lines.append(f"| {name} | {mean[name]:.0f} | {min(rates[name]):.0f}-{max(rates[name]):.0f} | {ratio} |")
     if torch.cuda.is_available():
         for n in args.gpu_envs:
-            results[f"gpu {n}"] = dict(steps_per_s=measure_gpu(n, args.steps))
-            rows.append(
-                (
-                    f"ours, GPU backend, {n} envs, 128² rgb+segmentation (total)",
-                    results[f"gpu {n}"]["steps_per_s"],
-                    "pybullet 128",
-                )
+            pool = Pool(make_vec_env(EnvConfig(image_size=128, box_source="none"), n, backend="gpu"))
+            began = time.perf_counter()
+            pool.run(args.steps)
+            lines.append(
+                f"| ours, GPU backend, {n} envs (total) | {args.steps * n / (time.perf_counter() - began):.0f} | | |"
             )
-
-    life = results["lifecycle"]
-    lines = [
-        f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {os.cpu_count()} CPU cores ({platform.processor() or platform.machine()}), "
-        f"{'GPU: ' + torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'}; "
-        f"load average {load_before[0]:.1f} before, {os.getloadavg()[0]:.1f} after; {args.steps} steps per measurement.",
-        "",
-        "| what | steps/s | × PyBullet |",
-        "|---|---|---|",
-    ]
-    for what, rate, ref in rows:
-        ratio = "1" if ref is None else f"{rate / results[ref]['steps_per_s']:.2f}" if ref in results else "–"
-        lines.append(f"| {what} | {rate:.0f} | {ratio} |")
-    if all(f"workers {n}" in results for n in (1, 2)):
-        scaling = results["workers 2"]["steps_per_s"] / results["workers 1"]["steps_per_s"]
+    memory = None
+    if args.resets:
+        memory = memory_resets.measure("fixed", args.resets)
         lines.append(
-            f"\n2 workers / 1 worker: {scaling:.2f}×; pool ready (start + reset): "
-            + ", ".join(f"{n} worker(s) {results[f'workers {n}']['pool_ready_s']:.1f} s" for n in args.workers)
+            f"\nRSS over {args.resets} resets with the same models (new scene each): {memory['rss_mb'][0]:.0f} -> "
+            f"{memory['rss_mb'][-1]:.0f} MB ({memory['growth_mb']:+.1f} MB), {memory['reset_ms']:.0f} ms per reset; "
+            f"every 100: {' '.join(f'{x:.0f}' for x in memory['rss_mb'])} (load {load()})"
         )
-    lines.append(
-        f"First env ready (make + reset, shaders compiled): {life['first_ready_s']:.2f} s; "
-        f"reset {life['reset_ms']:.1f} ms, with new objects {life['reset_reconfigure_ms']:.1f} ms."
+    lines.append(f"\nload average at the end: {load()}; {time.perf_counter() - start:.0f} s in all")
+    report = "\n".join(lines)
+    print(
+        "\n"
+        + "\n".join(
+            lines[
+                lines.index("| what | steps/s (mean of rounds) | rounds' min-max | × reference (in the same rounds) |")
+                - 1 :
+            ]
+        )
     )
-    if "memory_growth_mb" in life:
-        lines.append(
-            f"Memory over {life['reconfigures']} reconfigures: +{life['memory_growth_mb']:.1f} MB with new objects "
-            f"(SAPIEN caching each distinct mesh; bounded by the 800 train models), "
-            f"+{life['memory_growth_same_models_mb']:.1f} MB with the same models (≈ "
-            f"{life['memory_growth_same_models_mb'] / life['reconfigures'] * 1000:.1f} MB per 1,000: the leak)."
-        )
-    split = results.get("ours 128", {}).get("ms")
-    if split:
-        lines.append(
-            f"One 128² step: controller {split['set_action']:.2f} ms, physics {split['step']:.2f} ms, "
-            f"render + readback {split['_hand_camera_images']:.2f} ms, other {split['other']:.2f} ms."
-        )
-    if not torch.cuda.is_available():
-        lines.append("GPU backend: not measured (no CUDA device on this machine).")
-    table = "\n".join(lines)
-    print(table)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "benchmark.md").write_text(table + "\n")
+    (args.out / "benchmark.md").write_text(report + "\n")
     record = dict(
-        results=results,
-        load_average_before=load_before,
-        load_average_after=os.getloadavg(),
+        rates=rates,
+        first_env=life,
+        memory=memory,
         cpu_count=os.cpu_count(),
-        cuda=torch.cuda.is_available(),
         args={k: str(v) for k, v in vars(args).items()},
     )
     save_json(record, str(args.out / "benchmark.json"))

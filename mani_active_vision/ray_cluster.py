@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator, Sequence
 
+from mani_active_vision.threads import use_worker_threads, worker_threads
+
 try:
     import ray
 except ModuleNotFoundError as e:
@@ -69,6 +71,5 @@ def as_completed(
 
 
 def _on_node(fn: Callable, item):
-    # one software-render thread per task: a task holds one CPU (lavapipe starts a thread per core otherwise)
-    os.environ.setdefault("LP_NUM_THREADS", "1")
+    use_worker_threads(worker_threads(1, cores=1))  # a task holds one CPU (mani_active_vision.threads)
     return node_id(), fn(item)

@@ -16,11 +16,11 @@ from collections.abc import Callable, Sequence
 
 import gymnasium as gym
 import numpy as np
-import torch
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from mani_active_vision.ray_cluster import connect, node_id, ray
+from mani_active_vision.threads import use_worker_threads, worker_threads
 from mani_active_vision.vec_errors import WorkerCrashedError
 
 CLOSE_TIMEOUT_S = 10.0
@@ -33,9 +33,7 @@ class EnvActor:
     def make(self, env_fn: Callable[[], gym.Env]) -> dict:
         """Make the env (a method, not `__init__`: an error in making it reaches the caller as itself) and
         describe it and where it runs."""
-        torch.set_num_threads(1)  # docs/design.md §12: torch's default pool slows every small op
-        # one software-render thread: the actor holds one CPU, and lavapipe would start one per core
-        os.environ.setdefault("LP_NUM_THREADS", "1")
+        use_worker_threads(worker_threads(1, cores=1))  # the actor holds one CPU (mani_active_vision.threads)
         self.env = env_fn()
         return dict(
             observation_space=self.env.observation_space,

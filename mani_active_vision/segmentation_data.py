@@ -35,6 +35,7 @@ from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.objects import OBJECT_SETS
 from mani_active_vision.robots.iiwa import CAMERA_PITCH
 from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik
+from mani_active_vision.threads import WorkerThreads, use_worker_threads, worker_threads
 
 VIEW_MODES = ("target", "distractor", "anywhere", "lookalike")
 
@@ -171,9 +172,9 @@ def render_shard(
 _worker_env = None
 
 
-def _init_worker(config: SegmentationDataConfig) -> None:
+def _init_worker(config: SegmentationDataConfig, threads: WorkerThreads) -> None:
     global _worker_env
-    torch.set_num_threads(1)
+    use_worker_threads(threads)  # before the env makes the renderer (mani_active_vision.threads)
     _worker_env = make_data_env(config)
 
 
@@ -205,7 +206,9 @@ def collect_segmentation_data(
         else:
             jobs = [(out_dir, config, i, scenes_per_shard) for i in range(num_shards)]
             shards = []
-            with multiprocessing.get_context("spawn").Pool(workers, _init_worker, (config,)) as pool:
+            with multiprocessing.get_context("spawn").Pool(
+                workers, _init_worker, (config, worker_threads(workers))
+            ) as pool:
                 for shard in pool.imap(_render_shard_in_worker, jobs):  # in order: the manifest lists shards by index
                     shards.append(shard)
                     bar.update(shard["num_scenes"])

@@ -4,8 +4,10 @@
 the task, `DiscreteDirections` and the config's box state) as a gymnasium `VectorEnv`;
 `make_vec_env(env_id, num_envs, wrappers=(...), **env_kwargs)` does the same for any registered env:
 - CPU (`backend="cpu"`, the default without CUDA): an `AsyncVectorEnv` of `num_envs` worker processes,
-  each holding one `CPUGymWrapper`-wrapped env (ManiSkill's CPU backend takes `num_envs=1` only) with one
-  torch thread. Observations, rewards and infos are numpy arrays with a leading env dimension.
+  each holding one `CPUGymWrapper`-wrapped env (ManiSkill's CPU backend takes `num_envs=1` only), with
+  lavapipe's render threads set from `num_envs` and the cores, and one torch thread
+  (`mani_active_vision.threads`; an `LP_NUM_THREADS` the user set wins). Observations, rewards and infos
+  are numpy arrays with a leading env dimension.
 - GPU (`backend="gpu"`, the default with CUDA): one ManiSkill env with `num_envs` parallel scenes on the
   GPU physics backend, in ManiSkill's `ManiSkillVectorEnv`; observations are torch tensors on the GPU.
 - Ray (`backend="ray"`, never the default; `pip install -e '.[distributed]'`): each env in a Ray actor on
@@ -35,6 +37,7 @@ import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
 from mani_active_vision.envs import ENV_ID, EnvConfig, wrap_env
+from mani_active_vision.threads import WorkerThreads, use_worker_threads, worker_threads
 from mani_active_vision.vec_errors import WorkerCrashedError
 
 BACKENDS = ("auto", "cpu", "gpu", "ray")
@@ -76,22 +79,25 @@ def make_vec_env(
     if backend == "gpu":
         return _make_gpu_vec_env(env_id, num_envs, wrappers, env_kwargs)
     env_kwargs.setdefault("render_backend", "cpu")
-    env_fn = functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs)
     if backend == "ray":
         # Ray is an optional extra: its backend is imported only when asked for (an ImportError that says
         # how to install it if Ray is missing), so that the CPU and GPU backends work without it
         from mani_active_vision.ray_vec_env import RayVectorEnv
 
+        env_fn = functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs)  # the actor sets threads
         return RayVectorEnv([env_fn] * num_envs, address=address)
+    env_fn = functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs, worker_threads(num_envs))
     return CPUVectorEnv([env_fn] * num_envs, context=start_method, autoreset_mode=AutoresetMode.SAME_STEP)
 
 
-def _make_worker_env(env_id: str, wrappers: Sequence[Callable], env_kwargs: dict) -> gym.Env:
-    """Runs in each worker: one thread for torch (its default pool slows every small op on a busy CPU,
-    docs/design.md §12), one CPU env, the caller's wrappers. gymnasium also calls it once in the parent, to read
-    the spaces from a throwaway env: the parent's torch threads are left alone."""
-    if multiprocessing.parent_process() is not None:
-        torch.set_num_threads(1)
+def _make_worker_env(
+    env_id: str, wrappers: Sequence[Callable], env_kwargs: dict, threads: WorkerThreads | None = None
+) -> gym.Env:
+    """Runs in each worker: the worker's `threads` (set before its env makes the renderer), one CPU env, the
+    caller's wrappers. gymnasium also calls it once in the parent, to read the spaces from a throwaway env:
+    the parent's threads are left alone."""
+    if threads is not None and multiprocessing.parent_process() is not None:
+        use_worker_threads(threads)
     from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
     import mani_active_vision  # noqa: F401  (registers the task in a fresh worker process)

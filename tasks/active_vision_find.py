@@ -30,21 +30,25 @@ capped at 1; `sparse` = success. Success does not end the episode unless `termin
 
 from __future__ import annotations
 
+import gc
 import math
+import types
 
 import gymnasium as gym
 import numpy as np
 import sapien
 import torch
+from mani_skill.envs import sapien_env
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
-from mani_skill.utils.building.ground import build_ground
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Pose
 
 from mani_active_vision.boxes import target_stats
 from mani_active_vision.brdf_lut import supply_brdf_lut
+from mani_active_vision.culling import ViewCuller
+from mani_active_vision.floor import build_floor
 from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, object_set
 from mani_active_vision.robots.iiwa import IiwaWristCam
 
@@ -53,6 +57,8 @@ START_POSES = ("sky", "search")
 OBS_MODES = ("rgb+segmentation", "rgb", "state", "state_dict", "none")
 REWARD_MODES = ("dense", "normalized_dense", "sparse", "none")
 CONTROL_MODES = ("pd_ee_delta_pos",)
+_NO_FORCED_COLLECTION = types.SimpleNamespace(collect=lambda generation=2: 0)
+"""stands in for the gc module in ManiSkill's `BaseEnv._clear` on the CPU (see `ActiveVisionFindEnv._clear`)"""
 
 
 def _check_choice(name, value, valid):
@@ -87,6 +93,11 @@ class ActiveVisionFindEnv(BaseEnv):
     studio_pos = (0.0, 0.0, -5.0)
     """Where the target's copy is photographed: below the floor, out of the wrist camera's sight."""
     max_objects = len(fixed_layout)
+    cull = True
+    """skip, in each capture, the bodies out of the camera's view (the same images; False draws them all, as
+    ManiSkill does: `baselines/profile_step.py` compares both)"""
+    collect_every = 10
+    """a full garbage collection at every this many new scenes on the CPU (ManiSkill: every one; see `_clear`)"""
 
     def __init__(
         self,
@@ -136,6 +147,7 @@ class ActiveVisionFindEnv(BaseEnv):
         self.terminate_on_success = terminate_on_success
         self.target_image_size = int(target_image_size)
         self._hand_images = None
+        self._clears = 0
         if reconfiguration_freq is None:
             reconfiguration_freq = 1 if num_envs == 1 else 0
         super().__init__(
@@ -174,7 +186,8 @@ class ActiveVisionFindEnv(BaseEnv):
         super()._load_agent(options, sapien.Pose())
 
     def _load_scene(self, options: dict):
-        self.ground = build_ground(self.scene)
+        self._culler = ViewCuller()
+        self.ground = build_floor(self.scene)
         models = object_set(self.object_set)
         slots = [[] for _ in range(self.num_objects)]
         copies, bottoms, self.object_names, self.object_colors = [], [], [], []
@@ -264,6 +277,20 @@ class ActiveVisionFindEnv(BaseEnv):
             self.agent.controller.start_episode(env_idx, qpos)
             self._target_image_stale[env_idx] = True
 
+    def _clear(self):
+        # ManiSkill ends this with a full gc.collect(), to free GPU memory at once. On the CPU that walks every
+        # object of the process (~300 ms, most of a reset with new objects); skipping it leaves the old scenes,
+        # held in reference cycles, to Python's own rare full collections (RSS grew 190 MB over 1,000 resets).
+        # Collecting at every `collect_every`-th new scene keeps memory flat at a tenth of the cost (docs/speed.md).
+        self._clears += 1
+        if self._sim_device.is_cuda() or self._clears % self.collect_every == 0:
+            return super()._clear()
+        sapien_env.gc = _NO_FORCED_COLLECTION
+        try:
+            super()._clear()
+        finally:
+            sapien_env.gc = gc
+
     def reset(self, seed=None, options=None):
         self._hand_images = None
         if isinstance(seed, (int, np.integer)):
@@ -297,14 +324,26 @@ class ActiveVisionFindEnv(BaseEnv):
         super().set_state_dict(state, env_idx)
 
     # ------------------------------------------------------------------ sensing
+    def _capture(self, name: str, rgb: bool) -> dict:
+        """Render sensor `name`, skipping the bodies out of its view (`mani_active_vision.culling`: the same
+        images), and read back its segmentation and, with `rgb`, its colour."""
+        camera = self._sensors[name]
+        if self.cull and not self.gpu_sim_enabled:
+            self._culler.cull(camera.camera._render_cameras[0], self.scene.sub_scenes[0].render_system.render_bodies)
+        else:
+            self._culler.show_all()
+        self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+        camera.capture()
+        return camera.get_obs(rgb=rgb, depth=False, position=False, segmentation=True)
+
+    def render(self):
+        self._culler.show_all()  # the human render cameras see everything
+        return super().render()
+
     def _hand_camera_images(self) -> dict:
         """The wrist camera's rgb and segmentation, rendered once per step (reward and obs share it)."""
         if self._hand_images is None:
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            camera = self._sensors["hand_camera"]
-            camera.capture()
-            rgb = self.obs_mode_struct.visual.rgb
-            self._hand_images = camera.get_obs(rgb=rgb, depth=False, position=False, segmentation=True)
+            self._hand_images = self._capture("hand_camera", rgb=self.obs_mode_struct.visual.rgb)
         return self._hand_images
 
     def _get_obs_sensor_data(self, apply_texture_transforms: bool = True) -> dict:
@@ -319,10 +358,7 @@ class ActiveVisionFindEnv(BaseEnv):
     def _render_target_image(self) -> torch.Tensor:
         """Photograph the target's copy in the studio once per episode; non-target pixels grey."""
         if self._target_image_stale.any():
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            camera = self._sensors["target_camera"]
-            camera.capture()
-            images = camera.get_obs(rgb=True, depth=False, position=False, segmentation=True)
+            images = self._capture("target_camera", rgb=True)
             alone = images["segmentation"][..., 0] == self.target_copy.per_scene_id[:, None, None]
             image = torch.where(alone[..., None], images["rgb"], torch.full_like(images["rgb"], 128))
             stale = self._target_image_stale

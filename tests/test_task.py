@@ -5,8 +5,11 @@ import numpy as np
 import pytest
 import torch
 from conftest import cached_task
+from mani_skill.utils.building.ground import build_ground
+from mani_skill.utils.structs import Link
 
 import mani_active_vision as mav
+import mani_active_vision.tasks.active_vision_find as task
 from mani_active_vision.objects import object_set
 
 
@@ -152,3 +155,36 @@ def test_no_distractor_is_an_identical_twin_of_the_target():
         assert RELATIONS.index("identical twin") not in relations, (seed, base.object_names[0], base.object_colors[0])
         same_shape += int((relations == RELATIONS.index("same shape")).sum())
     assert same_shape > 10  # the look-alikes are still there, in other colours
+
+
+def test_culling_and_the_floor_in_pieces_leave_every_pixel_as_it_was(monkeypatch):
+    """Same seed, same actions: the task renders the same rgb, segmentation, target image and reward as with
+    ManiSkill's one-mesh floor and no culling (as it rendered before), also where the robot's base is in view,
+    and `render()` after culled frames shows everything again."""
+    moves = ["down"] * 6 + ["backward"] * 6 + list(np.random.default_rng(0).choice(mav.DIRECTIONS, 20))
+
+    def rollout(cull: bool):
+        kwargs = mav.EnvConfig(start_pose="search").task_kwargs()
+        env = mav.DiscreteDirections(gym.make("ActiveVisionFind-v0", render_mode="rgb_array", **kwargs))
+        env.unwrapped.cull = cull
+        frames = dict(target=[], rgb=[], segmentation=[], reward=[], human=[])
+        for seed in (0, 1):  # the second reset builds a new scene
+            obs, _ = env.reset(seed=seed)
+            frames["target"].append(obs["extra"]["target_image"])
+            for move in moves:
+                obs, reward, *_ = env.step(mav.DIRECTIONS.index(move))
+                frames["rgb"].append(obs["sensor_data"]["hand_camera"]["rgb"])
+                frames["segmentation"].append(obs["sensor_data"]["hand_camera"]["segmentation"])
+                frames["reward"].append(reward)
+            frames["human"].append(env.render())
+        links = [i for i, part in env.unwrapped.segmentation_id_map.items() if isinstance(part, Link)]
+        env.close()
+        return {k: torch.cat(v) for k, v in frames.items()}, links
+
+    now, links = rollout(cull=True)
+    with monkeypatch.context() as patch:
+        patch.setattr(task, "build_floor", build_ground)
+        before, _ = rollout(cull=False)
+    for key in now:
+        assert torch.equal(now[key], before[key]), key
+    assert torch.isin(now["segmentation"], torch.tensor(links)).any(), "the robot never came into view"

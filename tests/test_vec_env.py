@@ -7,6 +7,7 @@ compiles its shaders). Crash handling is the vector env's own code, tested on Ca
 import functools
 import os
 import signal
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -14,6 +15,7 @@ import pytest
 
 import mani_active_vision as mav
 from mani_active_vision.envs import ENV_ID, EnvConfig
+from mani_active_vision.threads import WorkerThreads, worker_threads
 from mani_active_vision.vec_env import CPUVectorEnv, WorkerCrashedError, make_vec_env
 
 
@@ -57,6 +59,24 @@ def test_workers_get_different_seeds_that_reproduce(pool):
     assert names_a[0] != names_a[1]  # worker 1 got seed 4, not worker 0's seed 3
     names_c, _ = rollout(seed=4)
     assert names_c[0] == names_a[1]  # gymnasium's convention: worker i gets seed + i
+
+
+def test_workers_render_with_their_share_of_the_cores(pool):
+    pool.reset(seed=0)
+    expected = worker_threads(2).render  # on 2 cores: 1, against lavapipe's default of one per core
+    for process in pool.processes:
+        tasks = Path(f"/proc/{process.pid}/task")
+        names = [(task / "comm").read_text() for task in tasks.iterdir()]  # lavapipe names them llvmpipe-<i>
+        assert sum(name.startswith("llvmpipe") for name in names) == expected
+
+
+def test_a_user_set_render_thread_count_wins(monkeypatch):
+    monkeypatch.setenv("LP_NUM_THREADS", "3")
+    assert worker_threads(1, cores=8) == WorkerThreads(render=3, torch=1)
+    monkeypatch.delenv("LP_NUM_THREADS")
+    assert worker_threads(1, cores=8) == WorkerThreads(render=7, torch=1)
+    assert worker_threads(2, cores=8) == WorkerThreads(render=3, torch=1)
+    assert worker_threads(4, cores=2) == WorkerThreads(render=1, torch=1)
 
 
 def _cartpole_pool(n=2):
