@@ -30,6 +30,7 @@ this module's current weights, 2-4x faster one frame at a time); `runtime="torch
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 from dataclasses import asdict, dataclass
@@ -485,3 +486,33 @@ def summarize_counts(counts: dict[str, torch.Tensor]) -> dict[str, float]:
         samples_with_target=int(present.sum()),
         samples_without_target=int(absent.sum()),
     )
+
+
+PRESENCE_THRESHOLDS = tuple(round(0.3 + 0.05 * i, 2) for i in range(12))
+"""presence thresholds `choose_presence_threshold` tries: 0.30, 0.35, ..., 0.85"""
+
+
+def choose_presence_threshold(
+    model: OneShotFCN, data: dict, thresholds: tuple[float, ...] = PRESENCE_THRESHOLDS, batch_size: int = 64
+) -> tuple[float, list[dict]]:
+    """The presence threshold with the highest target IoU minus false-positive rate on `data` (validation:
+    the same trade-off the best epoch is chosen by), masks as BoxState makes them (largest component); and
+    each threshold's metrics. The model's own threshold is left as it is."""
+    ungated = dataclasses.replace(model.config, presence_threshold=1e-6)
+    kept, model.config = model.config, ungated
+    try:
+        masks, presence = zip(
+            *(
+                model.predict_with_presence(data["scene"][i : i + batch_size], data["target"][i : i + batch_size], True)
+                for i in range(0, len(data["mask"]), batch_size)
+            )
+        )
+    finally:
+        model.config = kept
+    masks, presence, true = torch.cat(masks), torch.cat(presence), torch.as_tensor(data["mask"])
+    rows = []
+    for t in thresholds:
+        metrics = summarize_counts(mask_counts(masks & (presence >= t).view(-1, 1, 1), true))
+        rows.append(dict(threshold=round(float(t), 3), **metrics))
+    best = max(rows, key=lambda r: r["target_iou"] - r["false_positive_rate"])
+    return best["threshold"], rows

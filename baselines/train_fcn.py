@@ -21,6 +21,7 @@ continues from it); curves to RUN_DIR/curves.png.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -39,6 +40,7 @@ from tqdm import tqdm
 from mani_active_vision.agents.fcn import (
     FCNConfig,
     OneShotFCN,
+    choose_presence_threshold,
     class_weights,
     dataset_counts,
     flip_horizontally,
@@ -247,6 +249,19 @@ def main(args: Args):
             + (f" + {args.presence_loss_weight:g} × presence BCE" if args.presence_head else "")
         )
         plot_curves(history, os.path.join(args.run_dir, "curves.png"), loss_name)
+    model, checkpoint = load_checkpoint(best_path)
+    if model.config.presence_head:  # the gate's threshold, chosen on validation like the epoch
+        threshold, rows = choose_presence_threshold(model, val)
+        model.config = dataclasses.replace(model.config, presence_threshold=threshold)
+        extra = {k: v for k, v in checkpoint.items() if k not in ("format", "config", "state_dict")}
+        save_checkpoint(best_path, model, **extra, presence_thresholds=rows)
+        print(
+            "presence threshold on validation: "
+            + ", ".join(
+                f"{r['threshold']:.2f}: IoU {r['target_iou']:.3f} FP {r['false_positive_rate']:.3f}" for r in rows
+            )
+            + f" -> {threshold:.2f}"
+        )
     print(f"best val {args.select_by} {best_iou:.3f}: {best_path}; curves: {os.path.join(args.run_dir, 'curves.png')}")
 
 
