@@ -45,9 +45,6 @@ from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
 WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn.pt")
-PAPER_WEIGHTS_PATH = os.path.join(os.path.dirname(__file__), "weights", "fcn_paper.pt")
-"""The paper's design (global max pooling, no presence score), kept to compare with and to mine hard
-negatives with (`scripts/make_fcn.sh`)."""
 CHECKPOINT_FORMAT = "mani_active_vision.fcn/1"
 RUNTIMES = ("auto", "onnxruntime", "torch")
 

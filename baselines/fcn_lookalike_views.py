@@ -37,6 +37,8 @@ class Args:
     """camera heights (m) to look at each distractor from"""
     object_set: str = "unseen"
     image_size: int = 128
+    weights: str | None = None
+    """FCN checkpoint (default: the shipped agents/weights/fcn.pt)"""
 
 
 def camera_qpos(xy: np.ndarray, height: float) -> torch.Tensor | None:
@@ -53,7 +55,7 @@ def camera_qpos(xy: np.ndarray, height: float) -> torch.Tensor | None:
 
 def main(args: Args):
     torch.set_num_threads(1)
-    model = load_pretrained()
+    model = load_pretrained(args.weights)
     config = EnvConfig(start_pose="search", object_set=args.object_set, image_size=args.image_size)
     env = gym.make(ENV_ID, **config.task_kwargs())
     base, rows = env.unwrapped, []  # (distractor pixels, anything marked, mostly on it)

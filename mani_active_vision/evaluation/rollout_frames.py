@@ -58,8 +58,7 @@ class RolloutFramesConfig:
     sources: tuple[str, ...] = tuple(SOURCES)[:4]
     """which of SOURCES to run"""
     fcn_weights: str = ""
-    """the FCN of the sources on its box ("": the shipped one; the recipe mines with the paper's,
-    agents/weights/fcn_paper.pt, so that the data do not depend on the weights they train)"""
+    """the FCN checkpoint of the sources on its box ("": the shipped agents/weights/fcn.pt)"""
 
     def __post_init__(self):
         unknown = [s for s in self.sources if s not in SOURCES]
