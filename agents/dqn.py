@@ -36,7 +36,12 @@ focus in 100 episodes (0% success, docs/results.md; `LearnerReward`, docs/design
 The preset `hold` (`HOLD`) is `shaped` without the episode end at success: the bonus of 1 at the first
 success, then `hold_reward` 0.2 for every later step in success, so that keeping the target in focus pays
 (shaped ends at success, so it never learns to stay).
+`demo_episodes` lets the scripted servo act the first training episodes (with env.stay_action it also stays
+in success), its transitions stored as the learner's; `demo_margin` adds DQfD's supervised margin loss on them.
 Evaluation is always on the task as it is (no episode end at success, the env's own reward).
+
+`--track` also writes the training scalars to TensorBoard in the run's folder (`tensorboard --logdir runs/dqn`;
+TensorBoard is the optional extra `track`); the learning curve is a PNG either way.
 """
 
 from __future__ import annotations
@@ -57,7 +62,7 @@ from tqdm import tqdm
 
 from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, ServoPolicy, box_array, num_actions
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
-from mani_active_vision.directions import action_names
+from mani_active_vision.directions import DIRECTIONS, action_names
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
@@ -112,7 +117,11 @@ class Args:
     """the first this many of the training episodes are acted by the scripted servo (after the exploration's
     hand-over, where the DQN would act), its transitions stored as the learner's: no seed starts without
     having seen success (demonstrations in the replay buffer, as in DQfD, without its supervised loss; not in
-    the paper)"""
+    the paper). With env.stay_action the servo also takes `stay` while in success (`ServoPolicy(hold=True)`,
+    privileged), so that the demonstrations show holding"""
+    demo_margin: float = 0.0
+    """DQfD's large-margin loss on the demonstrations (Hester et al. 2018; they use 0.8): the servo's action
+    must be valued this much above every other, a supervised term added to the TD loss (0: off)"""
     hold_reward: float = 0.0
     """added to the reward of every later step in success: time in success pays, so that a learner whose
     episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
@@ -139,6 +148,9 @@ class Args:
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
     """the run's folder name (default: made from the options and the seed)"""
+    track: bool = False
+    """also write the training scalars (return, success, focus, TD loss, ε, ...) to TensorBoard in the run's
+    folder (CleanRL's --track; TensorBoard is an optional extra: pip install -e '.[track]')"""
 
 
 def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
@@ -149,8 +161,8 @@ def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
 
 
 class ReplayBuffer:
-    """A ring buffer of (state, action, reward, next_state, terminated, steps) transitions; `steps` is how
-    many env steps the reward sums (1, or up to n for n-step returns)."""
+    """A ring buffer of (state, action, reward, next_state, terminated, steps, demo) transitions; `steps` is
+    how many env steps the reward sums (1, or up to n for n-step returns), `demo` marks the servo's."""
 
     def __init__(self, capacity: int, state_dim: int):
         self.states = np.zeros((capacity, state_dim), np.float32)
@@ -159,18 +171,20 @@ class ReplayBuffer:
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
         self.steps = np.ones(capacity, np.float32)
+        self.demo = np.zeros(capacity, bool)
         self.capacity, self.size, self._next = capacity, 0, 0
 
-    def add(self, state, action, reward, next_state, terminated, steps=1):
+    def add(self, state, action, reward, next_state, terminated, steps=1, demo=False):
         i = self._next
         self.states[i], self.actions[i], self.rewards[i] = state, action, reward
         self.next_states[i], self.terminated[i], self.steps[i] = next_state, terminated, steps
+        self.demo[i] = demo
         self._next = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         idx = rng.integers(0, self.size, size=batch_size)
-        keys = ("states", "actions", "rewards", "next_states", "terminated", "steps")
+        keys = ("states", "actions", "rewards", "next_states", "terminated", "steps", "demo")
         return {k: torch.as_tensor(getattr(self, k)[idx]) for k in keys}
 
 
@@ -212,6 +226,18 @@ def td_loss(
         td_target = batch["rewards"] + discount * (1.0 - batch["terminated"]) * next_value
     q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
+
+
+def margin_loss(q_network: QNetwork, batch: dict, margin: float) -> torch.Tensor:
+    """DQfD's large-margin loss over the batch's demonstrations: max_a [Q(s, a) + margin (a ≠ a_E)] - Q(s, a_E),
+    with a_E the demonstrator's action; zero for a batch without demonstrations."""
+    demo = batch["demo"]
+    if not demo.any():
+        return torch.zeros(())
+    q = q_network(batch["states"][demo])
+    expert = batch["actions"][demo]
+    penalty = margin * (1.0 - F.one_hot(expert, q.shape[-1]).float())
+    return ((q + penalty).max(-1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
 
 
 ACTIONS = action_names(stay_action=True)
@@ -275,6 +301,34 @@ class LearnerReward:
         return reward - args.refusal_penalty * first_env(info, "refused") - args.step_cost
 
 
+def tensorboard_writer(run_dir: str):
+    """A TensorBoard `SummaryWriter` on `run_dir`; TensorBoard is optional, so its absence is an error that says
+    how to install it."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError as e:
+        raise ImportError(
+            "--track writes TensorBoard scalars, and TensorBoard is not installed: pip install -e '.[track]' "
+            "(or pip install tensorboard)"
+        ) from e
+    return SummaryWriter(run_dir)
+
+
+TRACKED = (
+    "return",
+    "learner_return",
+    "success",
+    "success_final",
+    "focus_held",
+    "epsilon",
+    "td_loss",
+    "margin_loss",
+    "learner_steps",
+)
+"""The per-episode entries of the history that --track writes, under charts/ or losses/, at the episode's
+last env step (CleanRL's x axis)."""
+
+
 def default_run_name(args: Args) -> str:
     shaping = f"_{args.shaping}" if args.shaping != "none" else ""
     link = "_ee" if args.env.with_ee_pos else ""
@@ -294,6 +348,9 @@ def train(args: Args, progress: bool = True) -> dict:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
     if args.env.box_source == "none":
         raise ValueError("the DQN learns on the box state: env.box_source must be ground_truth or fcn")
+    run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
+    os.makedirs(run_dir, exist_ok=True)
+    writer = tensorboard_writer(run_dir) if args.track else None  # before anything slow: a missing extra fails now
     torch.set_num_threads(1)
     random.seed(args.seed)
     np.random.seed(args.seed)
@@ -311,14 +368,12 @@ def train(args: Args, progress: bool = True) -> dict:
         target_network = q_network  # bootstrap from the online network itself
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
     policy = ExplorePolicy(env, then=learner) if args.explore else learner
-    servo = ServoPolicy(env)
+    servo = ServoPolicy(env, hold=actions > len(DIRECTIONS))
     demonstrator = ExplorePolicy(env, then=servo) if args.explore else servo
     buffer = ReplayBuffer(args.buffer_size, state_dim)
     window = NStepWindow(args.n_step, args.gamma)
     learner_reward = LearnerReward(args, env.unwrapped.success_fraction)
 
-    run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
-    os.makedirs(run_dir, exist_ok=True)
     history, global_step, start = [], 0, time.time()
     trajectory = Trajectory()
     bar = tqdm(range(args.episodes), desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
@@ -332,7 +387,7 @@ def train(args: Args, progress: bool = True) -> dict:
             learner.reset(obs, info)
             trajectory.start(info)
             learner_reward.reset(info)
-            losses, learner_steps, done = [], 0, False
+            losses, margins, learner_steps, learner_return, done = [], [], 0, 0.0, False
             while not done:
                 learner_acts = bool(actor.update(obs)[0]) if args.explore else True
                 state = learner.state(obs)[0]
@@ -344,16 +399,16 @@ def train(args: Args, progress: bool = True) -> dict:
                 terminated = bool(terminated[0]) or (args.end_at_success and bool(first_env(info, "success")))
                 done = terminated or bool(truncated[0])
                 reward_now = learner_reward(reward, info)
+                learner_return += reward_now
                 if learner_acts:  # the script's steps are not the learner's experience
                     next_state = learner.state(next_obs)[0]
                     for s0, a0, discounted, s_n, ended, steps in window.push(
                         state, action[0], reward_now, next_state, terminated, done
                     ):
-                        buffer.add(s0, a0, discounted, s_n, ended, steps)
+                        buffer.add(s0, a0, discounted, s_n, ended, steps, demo)
                         if args.mirror_augment:
-                            buffer.add(
-                                mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps
-                            )
+                            mirrored = (mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n))
+                            buffer.add(*mirrored, ended, steps, demo)
                     learner_steps += 1
                 obs = next_obs
                 global_step += 1
@@ -362,10 +417,14 @@ def train(args: Args, progress: bool = True) -> dict:
                     for _ in range(args.updates_per_step):
                         batch = buffer.sample(args.batch_size, rng)
                         loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
+                        losses.append(loss.item())
+                        if args.demo_margin:
+                            margin = margin_loss(q_network, batch, args.demo_margin)
+                            margins.append(margin.item())
+                            loss = loss + margin
                         optimizer.zero_grad()
                         loss.backward()
                         optimizer.step()
-                        losses.append(loss.item())
                 if args.target_network and global_step % args.target_update_steps == 0:
                     target_network.load_state_dict(q_network.state_dict())
 
@@ -375,16 +434,25 @@ def train(args: Args, progress: bool = True) -> dict:
                     "episode": episode,
                     "epsilon": learner.epsilon,
                     "learner_steps": learner_steps,
+                    "learner_return": learner_return,
                     "demo": demo,
                     "td_loss": float(np.mean(losses)) if losses else math.nan,
+                    "margin_loss": float(np.mean(margins)) if margins else math.nan,
                     **metrics,
                 }
             )
+            if writer is not None:
+                for key in TRACKED:
+                    if not math.isnan(history[-1][key]):  # e.g. focus held of an unsuccessful episode
+                        group = "losses" if key.endswith("loss") else "charts"
+                        writer.add_scalar(f"{group}/{key}", history[-1][key], global_step)
             bar.set_postfix(
                 ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}"
             )
     finally:
         env.close()
+        if writer is not None:
+            writer.close()
         checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far
         save_q_network(checkpoint, q_network, args)
         save_json(

@@ -4,9 +4,12 @@ import dataclasses
 import json
 import math
 import os
+import re
 import subprocess
 import sys
+import types
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -206,6 +209,52 @@ def test_a_short_training_run_end_to_end(tmp_path):
     policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"])
     episodes = evaluate(env, policy, [1_000_000], with_reference=False)
     assert set(episodes[0]) >= {"success", "spl", "steps_to_see", "return"}
+
+
+def test_track_writes_the_training_scalars_to_tensorboard(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    args = dqn.Args(
+        env=EnvConfig(max_episode_steps=20), episodes=2, learning_starts=10, run_dir=str(tmp_path), track=True
+    )
+    result = dqn.train(args, progress=False)
+    events = EventAccumulator(result["run_dir"]).Reload()
+    assert {"charts/return", "charts/success", "charts/epsilon", "losses/td_loss"} <= set(events.Tags()["scalars"])
+    returns = events.Scalars("charts/return")
+    assert [e.value for e in returns] == pytest.approx([h["return"] for h in result["history"]])
+    assert [e.step for e in returns] == [20, 40]  # CleanRL's x axis: the env steps so far
+    assert [e.value for e in events.Scalars("charts/epsilon")] == pytest.approx([0.1, 0.02])
+    assert os.path.exists(os.path.join(result["run_dir"], "history.json"))  # the history as without --track
+
+
+def test_track_without_tensorboard_says_how_to_install_it(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # importing it now fails
+    with pytest.raises(ImportError, match=re.escape("pip install -e '.[track]'")):
+        dqn.train(dqn.Args(run_dir=str(tmp_path), track=True), progress=False)
+    assert not any(name.endswith("q_network.pt") for _, _, files in os.walk(tmp_path) for name in files)
+
+
+def test_margin_loss_is_zero_once_the_demonstrators_action_leads_by_the_margin():
+    q_network = dqn.QNetwork(4, 8, 6)
+    with torch.no_grad():  # Q = the bias: action 2 leads every other by 1
+        q_network.network[2].weight.zero_()
+        q_network.network[2].bias.copy_(torch.tensor([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
+    batch = {"states": torch.rand(4, 4), "actions": torch.tensor([2, 2, 0, 5]), "demo": torch.tensor([1, 1, 1, 0]) > 0}
+    # demonstrations 2 and 2 lead by 1 >= 0.8: no loss; demonstration 0 trails action 2 by 1, plus the margin
+    assert dqn.margin_loss(q_network, batch, 0.8).item() == pytest.approx((0 + 0 + 1.8) / 3)
+    assert dqn.margin_loss(q_network, {**batch, "demo": torch.zeros(4, dtype=torch.bool)}, 0.8).item() == 0
+
+
+def test_the_holding_servo_stays_in_success_only():
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(7))
+    servo = make_policy("servo", env, hold=True)
+    centred_and_close = np.array([[0.35, 0.35, 0.3, 0.3], [0.35, 0.35, 0.3, 0.3]])
+    action = servo.act(centred_and_close, {"success": np.array([True, False]), "refused": np.zeros(2, bool)})
+    assert action.tolist() == [6, FORWARD]  # stay where the task says success, else the servo's step
+    with pytest.raises(ValueError, match="stay_action"):
+        make_policy(
+            "servo", types.SimpleNamespace(unwrapped=env.unwrapped, action_space=gym.spaces.Discrete(6)), hold=True
+        )
 
 
 def test_mirrored_transitions_and_shaping_potentials():
