@@ -257,6 +257,18 @@ def test_the_holding_servo_stays_in_success_only():
         )
 
 
+def test_batched_training_plays_the_same_episodes_as_one_env(tmp_path):
+    # two demonstration episodes: what happens in them does not depend on the network, so one env and two
+    # worker processes (one episode each, at once) must give the same episodes and the same transitions
+    args = dqn.Args(**dqn.HOLD, demo_episodes=2, env=EnvConfig(max_episode_steps=15), episodes=2, run_dir=str(tmp_path))
+    one, two = (dqn.train(dataclasses.replace(args, num_envs=n, run_name=f"n{n}"), progress=False) for n in (1, 2))
+    keys = ("episode", "demo", "epsilon", "learner_steps", "learner_return", "return", "final_target_fraction")
+    assert [[h[k] for k in keys] for h in two["history"]] == [[h[k] for k in keys] for h in one["history"]]
+    assert two["transitions"] == one["transitions"] > 0
+    with pytest.raises(ValueError, match="must be a multiple of num_envs=2"):
+        dqn.train(dataclasses.replace(args, episodes=3, num_envs=2), progress=False)
+
+
 def test_mirrored_transitions_and_shaping_potentials():
     six = dqn.MIRRORED_ACTION[:6]  # the table of the six directions (stay, when enabled, comes last)
     assert [mav.DIRECTIONS[a] for a in six] == ["right", "left", "forward", "backward", "up", "down"]
