@@ -62,7 +62,14 @@ import tyro
 import tyro.extras
 from tqdm import tqdm
 
-from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, ServoPolicy, box_array, num_actions
+from mani_active_vision.agents.policies import (
+    STAY_INDEX,
+    DQNPolicy,
+    ExplorePolicy,
+    ServoPolicy,
+    box_array,
+    num_actions,
+)
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.directions import DIRECTIONS, action_names
 from mani_active_vision.envs import EnvConfig, make_env
@@ -130,6 +137,9 @@ class Args:
     episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
     refusal_penalty: float = 0.0
     """subtracted from the reward of a refused step: the arm did not move (not in the paper)"""
+    stay_penalty: float = 0.0
+    """subtracted from the reward of a `stay` (env.stay_action) out of success: standing still pays only in
+    focus, so that a learner does not settle where it is (not in the paper)"""
     step_cost: float = 0.0
     """subtracted from the reward of every step: cycling costs, reaching success sooner pays (not in the paper)"""
     shaping: str = "none"
@@ -296,7 +306,7 @@ class LearnerReward:
         self.previous = self._potential(info)
         self.reached = False  # success reached this episode
 
-    def __call__(self, env_reward, info) -> float:
+    def __call__(self, env_reward, info, stayed: bool = False) -> float:
         args, current = self.args, self._potential(info)
         reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
         self.previous = current
@@ -304,7 +314,8 @@ class LearnerReward:
         if success:  # the bonus once, at the first success; time in success after it (also regained) pays
             reward += args.hold_reward if self.reached else args.success_bonus
             self.reached = True
-        return reward - args.refusal_penalty * first_env(info, "refused") - args.step_cost
+        idle = args.refusal_penalty * first_env(info, "refused") + args.stay_penalty * (stayed and not success)
+        return reward - idle - args.step_cost
 
 
 class DemoOrLearner:
@@ -467,7 +478,7 @@ def train(args: Args, progress: bool = True) -> dict:
                     trajectories[i].append(reward[i : i + 1], view)
                     ended = bool(terminated[i]) or (args.end_at_success and bool(first_env(view, "success")))
                     done = ended or bool(truncated[i])
-                    reward_now = learner_rewards[i](reward[i : i + 1], view)
+                    reward_now = learner_rewards[i](reward[i : i + 1], view, stayed=action[i] == STAY_INDEX)
                     learner_return[i] += reward_now
                     if learner_acts[i]:  # the script's steps are not the learner's experience
                         pushed = windows[i].push(states[i], action[i], reward_now, next_states[i], ended, done)

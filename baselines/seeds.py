@@ -7,7 +7,8 @@ worst seed, beside the scripted servo on the same episodes.
 
 `--set` changes options of the preset (an option tried, not yet a preset), `--name` names its runs.
 Runs are kept under `out_dir/name/seed<k>` and skipped when finished, so one seed at a time can be run
-(`--seeds 3`) and the table made from all finished ones (`--report-only`). The reference's steps (for SPL)
+(`--seeds 3`) and the table made from all finished ones (`--report-only`); a finished training is only
+evaluated, so `--eval-box-source fcn` evaluates the same agents on the FCN's box (eval_fcn.json beside eval.json). The reference's steps (for SPL)
 and the servo's evaluation are measured once per evaluation env and episode count, and cached.
 """
 
@@ -126,10 +127,23 @@ def evaluate_policy(args: Args, name: str, **kwargs) -> dict:
     return {"summary": summarize(episodes), "episodes": episodes}
 
 
+def eval_path(args: Args, seed_dir: str) -> str:
+    """A seed's evaluation: eval.json on the ground-truth box, eval_<box>.json on another."""
+    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
+    return os.path.join(seed_dir, f"eval{box}.json")
+
+
 def run_seed(args: Args, seed: int):
+    """Train the seed unless its training finished, then evaluate it unless already evaluated on this box."""
     run_dir = os.path.join(args.out_dir, label(args))
-    eval_path = os.path.join(run_dir, f"seed{seed}", "eval.json")
-    if os.path.exists(eval_path):
+    path = eval_path(args, os.path.join(run_dir, f"seed{seed}"))
+    if os.path.exists(path):
+        return
+    history = os.path.join(run_dir, f"seed{seed}", "history.json")
+    if os.path.exists(history) and read_json(history)["complete"]:
+        checkpoint = os.path.join(run_dir, f"seed{seed}", "q_network.pt")
+        result = evaluate_policy(args, "explore", then="dqn", checkpoint=checkpoint, seed=seed)
+        save_json({"eval_env": dataclasses.asdict(eval_env_config(args)), **result}, path)
         return
     train_args = dataclasses.replace(
         dqn.PRESETS[args.preset][1],
@@ -141,9 +155,8 @@ def run_seed(args: Args, seed: int):
         run_dir=run_dir,
         run_name=f"seed{seed}",
     )
-    checkpoint = dqn.train(train_args)["checkpoint"]
-    result = evaluate_policy(args, "explore", then="dqn", checkpoint=checkpoint, seed=seed)
-    save_json({"eval_env": dataclasses.asdict(eval_env_config(args)), **result}, eval_path)
+    dqn.train(train_args)
+    run_seed(args, seed)
 
 
 def report(args: Args) -> str:
@@ -155,10 +168,10 @@ def report(args: Args) -> str:
     )
     for seed_dir in sorted(os.listdir(run_dir)) if os.path.isdir(run_dir) else []:
         path = os.path.join(run_dir, seed_dir)
-        if not os.path.exists(os.path.join(path, "eval.json")):
+        if not os.path.exists(eval_path(args, path)):
             continue
         history = read_json(os.path.join(path, "history.json"))
-        summary = read_json(os.path.join(path, "eval.json"))["summary"]
+        summary = read_json(eval_path(args, path))["summary"]
         summaries.append(summary)
         last10 = np.mean([h["success"] for h in history["history"][-10:]])
         rows.append(f"| {label(args)} {seed_dir} | {history['seconds']:.0f} | {last10:.2f} | " + cells(summary) + " |")
@@ -179,7 +192,8 @@ def report(args: Args) -> str:
         f"{args.eval_box_source} box; focus held over the successful episodes; in the mean row, focus held and steps "
         "to success are over the seeds where they exist)\n"
     )
-    with open(os.path.join(args.out_dir, f"{label(args)}_table.md"), "w") as f:
+    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
+    with open(os.path.join(args.out_dir, f"{label(args)}{box}_table.md"), "w") as f:
         f.write(table + note)
     return table
 
