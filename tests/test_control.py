@@ -1,6 +1,7 @@
 """Control: the DQN's pieces, the policies, the metrics and a short end-to-end training run."""
 
 import dataclasses
+import importlib.util
 import json
 import math
 import os
@@ -267,6 +268,34 @@ def test_batched_training_plays_the_same_episodes_as_one_env(tmp_path):
     assert two["transitions"] == one["transitions"] > 0
     with pytest.raises(ValueError, match="must be a multiple of num_envs=2"):
         dqn.train(dataclasses.replace(args, episodes=3, num_envs=2), progress=False)
+
+
+def test_the_shipped_dqn_loads_and_acts_as_deployed():
+    path = os.path.join(ROOT, "agents", "weights", "dqn.pt")
+    config = torch.load(path, weights_only=True)["config"]  # weights and plain data only
+    deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+    assert (deployed.box_source, deployed.object_set) == ("fcn", "unseen")  # evaluate.py starts from this env
+    assert trained.box_source == "ground_truth" and deployed == trained.replace(box_source="fcn", object_set="unseen")
+    env = mav.make_env(deployed.replace(max_episode_steps=25))
+    try:
+        policy = make_policy("explore", env, then="dqn", checkpoint=path)
+        episode = evaluate(env, policy, [1_000_000], with_reference=False)[0]
+    finally:
+        env.close()
+    assert policy.handed_over.all() and policy.then.last_action[0] >= 0  # the target was seen and the DQN acted
+    assert episode["steps_to_see"] < 25
+
+
+def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(monkeypatch):
+    spec = importlib.util.spec_from_file_location("seeds", os.path.join(ROOT, "baselines", "seeds.py"))
+    seeds = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "seeds", seeds)  # its dataclasses look their module up there
+    spec.loader.exec_module(seeds)
+    args = seeds.Args(preset="hold_demo", set=["demo_episodes=20", "demo_margin=0.8", "double_dqn=false"])
+    assert seeds.train_options(args) == {"demo_episodes": 20, "demo_margin": 0.8, "double_dqn": False}
+    assert seeds.label(args) == "hold_demo" and seeds.label(dataclasses.replace(args, name="x")) == "x"
+    with pytest.raises(ValueError, match="'seed' is not one of"):  # the script's own, not the preset's
+        seeds.train_options(dataclasses.replace(args, set=["seed=3"]))
 
 
 def test_mirrored_transitions_and_shaping_potentials():
