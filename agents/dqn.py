@@ -429,7 +429,7 @@ def train(args: Args, progress: bool = True) -> dict:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     n = args.num_envs
-    env = make_env(args.env) if n == 1 else make_vec_env(args.env, n)
+    env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)  # 6, or 7 with env.stay_action
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
