@@ -36,7 +36,14 @@ focus in 100 episodes (0% success, docs/results.md; `LearnerReward`, docs/design
 The preset `hold` (`HOLD`) is `shaped` without the episode end at success: the bonus of 1 at the first
 success, then `hold_reward` 0.2 for every later step in success, so that keeping the target in focus pays
 (shaped ends at success, so it never learns to stay).
+`demo_episodes` lets the scripted servo act the first training episodes (with env.stay_action it also stays
+in success), its transitions stored as the learner's; `demo_margin` adds DQfD's supervised margin loss on them.
 Evaluation is always on the task as it is (no episode end at success, the env's own reward).
+
+`--num-envs N` collects from N `make_vec_env` worker processes, one training episode each per round (the same
+episodes and seeds, the same updates per env step; 1, the default, is the env in this process).
+`--track` also writes the training scalars to TensorBoard in the run's folder (`tensorboard --logdir runs/dqn`;
+TensorBoard is the optional extra `track`); the learning curve is a PNG either way.
 """
 
 from __future__ import annotations
@@ -55,12 +62,20 @@ import tyro
 import tyro.extras
 from tqdm import tqdm
 
-from mani_active_vision.agents.policies import DQNPolicy, ExplorePolicy, ServoPolicy, box_array, num_actions
+from mani_active_vision.agents.policies import (
+    STAY_INDEX,
+    DQNPolicy,
+    ExplorePolicy,
+    ServoPolicy,
+    box_array,
+    num_actions,
+)
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
-from mani_active_vision.directions import action_names
+from mani_active_vision.directions import DIRECTIONS, action_names
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
+from mani_active_vision.vec_env import make_vec_env
 
 TRAIN_SEED_STRIDE = 10_000
 """Training episode k of run seed s resets the env with seed s * TRAIN_SEED_STRIDE + k (evaluation uses
@@ -112,12 +127,19 @@ class Args:
     """the first this many of the training episodes are acted by the scripted servo (after the exploration's
     hand-over, where the DQN would act), its transitions stored as the learner's: no seed starts without
     having seen success (demonstrations in the replay buffer, as in DQfD, without its supervised loss; not in
-    the paper)"""
+    the paper). With env.stay_action the servo also takes `stay` while in success (`ServoPolicy(hold=True)`,
+    privileged), so that the demonstrations show holding"""
+    demo_margin: float = 0.0
+    """DQfD's large-margin loss on the demonstrations (Hester et al. 2018; they use 0.8): the servo's action
+    must be valued this much above every other, a supervised term added to the TD loss (0: off)"""
     hold_reward: float = 0.0
     """added to the reward of every later step in success: time in success pays, so that a learner whose
     episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
     refusal_penalty: float = 0.0
     """subtracted from the reward of a refused step: the arm did not move (not in the paper)"""
+    stay_penalty: float = 0.0
+    """subtracted from the reward of a `stay` (env.stay_action) out of success: standing still pays only in
+    focus, so that a learner does not settle where it is (not in the paper)"""
     step_cost: float = 0.0
     """subtracted from the reward of every step: cycling costs, reaching success sooner pays (not in the paper)"""
     shaping: str = "none"
@@ -139,6 +161,12 @@ class Args:
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
     """the run's folder name (default: made from the options and the seed)"""
+    num_envs: int = 1
+    """envs that collect at once, each a `make_vec_env` worker process playing one training episode per round
+    (1: the env in this process); the episodes, their seeds and the updates per env step do not change"""
+    track: bool = False
+    """also write the training scalars (return, success, focus, TD loss, ε, ...) to TensorBoard in the run's
+    folder (CleanRL's --track; TensorBoard is an optional extra: pip install -e '.[track]')"""
 
 
 def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
@@ -149,8 +177,8 @@ def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
 
 
 class ReplayBuffer:
-    """A ring buffer of (state, action, reward, next_state, terminated, steps) transitions; `steps` is how
-    many env steps the reward sums (1, or up to n for n-step returns)."""
+    """A ring buffer of (state, action, reward, next_state, terminated, steps, demo) transitions; `steps` is
+    how many env steps the reward sums (1, or up to n for n-step returns), `demo` marks the servo's."""
 
     def __init__(self, capacity: int, state_dim: int):
         self.states = np.zeros((capacity, state_dim), np.float32)
@@ -159,18 +187,20 @@ class ReplayBuffer:
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
         self.steps = np.ones(capacity, np.float32)
+        self.demo = np.zeros(capacity, bool)
         self.capacity, self.size, self._next = capacity, 0, 0
 
-    def add(self, state, action, reward, next_state, terminated, steps=1):
+    def add(self, state, action, reward, next_state, terminated, steps=1, demo=False):
         i = self._next
         self.states[i], self.actions[i], self.rewards[i] = state, action, reward
         self.next_states[i], self.terminated[i], self.steps[i] = next_state, terminated, steps
+        self.demo[i] = demo
         self._next = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         idx = rng.integers(0, self.size, size=batch_size)
-        keys = ("states", "actions", "rewards", "next_states", "terminated", "steps")
+        keys = ("states", "actions", "rewards", "next_states", "terminated", "steps", "demo")
         return {k: torch.as_tensor(getattr(self, k)[idx]) for k in keys}
 
 
@@ -212,6 +242,18 @@ def td_loss(
         td_target = batch["rewards"] + discount * (1.0 - batch["terminated"]) * next_value
     q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
+
+
+def margin_loss(q_network: QNetwork, batch: dict, margin: float) -> torch.Tensor:
+    """DQfD's large-margin loss over the batch's demonstrations: max_a [Q(s, a) + margin (a ≠ a_E)] - Q(s, a_E),
+    with a_E the demonstrator's action; zero for a batch without demonstrations."""
+    demo = batch["demo"]
+    if not demo.any():
+        return torch.zeros(())
+    q = q_network(batch["states"][demo])
+    expert = batch["actions"][demo]
+    penalty = margin * (1.0 - F.one_hot(expert, q.shape[-1]).float())
+    return ((q + penalty).max(-1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
 
 
 ACTIONS = action_names(stay_action=True)
@@ -264,7 +306,7 @@ class LearnerReward:
         self.previous = self._potential(info)
         self.reached = False  # success reached this episode
 
-    def __call__(self, env_reward, info) -> float:
+    def __call__(self, env_reward, info, stayed: bool = False) -> float:
         args, current = self.args, self._potential(info)
         reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
         self.previous = current
@@ -272,7 +314,87 @@ class LearnerReward:
         if success:  # the bonus once, at the first success; time in success after it (also regained) pays
             reward += args.hold_reward if self.reached else args.success_bonus
             self.reached = True
-        return reward - args.refusal_penalty * first_env(info, "refused") - args.step_cost
+        idle = args.refusal_penalty * first_env(info, "refused") + args.stay_penalty * (stayed and not success)
+        return reward - idle - args.step_cost
+
+
+class DemoOrLearner:
+    """Per env, the scripted servo (`demo`: a demonstration episode) or the learner acts; each is asked only
+    when some env needs it, so that the learner's ε draws are the same as when it acts alone."""
+
+    def __init__(self, servo: ServoPolicy, learner: DQNPolicy):
+        self.servo, self.learner = servo, learner
+        self.demo = np.zeros(learner.num_envs, bool)
+
+    def reset(self, obs, info):
+        self.servo.reset(obs, info)
+        self.learner.reset(obs, info)
+
+    def act(self, obs, info) -> np.ndarray:
+        if self.demo.all():
+            return self.servo.act(obs, info)
+        if not self.demo.any():
+            return self.learner.act(obs, info)
+        return np.where(self.demo, self.servo.act(obs, info), self.learner.act(obs, info))
+
+
+INFO_KEYS = ("target_visible", "success", "target_fraction", "target_center_offset", "refused")
+"""What the learner reads of an env's info."""
+
+
+def env_info(info: dict, i: int) -> dict:
+    """Env i's entries of a batched info, as a batch of one (what `first_env` reads)."""
+    return {key: info[key][i : i + 1] for key in INFO_KEYS if key in info}
+
+
+def last_step(obs, info: dict) -> tuple:
+    """The observation and info of the step just taken. A vector env resets a finished episode in the same step
+    (gymnasium's same-step autoreset): its last observation and info are then under final_obs / final_info."""
+    if "final_obs" not in info:
+        return obs, info
+    done = np.asarray(info["_final_obs"], bool)
+    obs = np.array(obs, copy=True)
+    obs[done] = np.stack(info["final_obs"][done])
+    final = info["final_info"]
+    return obs, {key: np.where(done, final[key], info[key]) for key in INFO_KEYS if key in info}
+
+
+def update(q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict, args: Args) -> tuple[float, float]:
+    """One gradient step on a batch: the TD loss, plus DQfD's margin loss with `demo_margin`; returns both."""
+    loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
+    margin = margin_loss(q_network, batch, args.demo_margin) if args.demo_margin else torch.zeros(())
+    optimizer.zero_grad()
+    (loss + margin).backward()
+    optimizer.step()
+    return loss.item(), margin.item()
+
+
+def tensorboard_writer(run_dir: str):
+    """A TensorBoard `SummaryWriter` on `run_dir`; TensorBoard is optional, so its absence is an error that says
+    how to install it."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError as e:
+        raise ImportError(
+            "--track writes TensorBoard scalars, and TensorBoard is not installed: pip install -e '.[track]' "
+            "(or pip install tensorboard)"
+        ) from e
+    return SummaryWriter(run_dir)
+
+
+TRACKED = (
+    "return",
+    "learner_return",
+    "success",
+    "success_final",
+    "focus_held",
+    "epsilon",
+    "td_loss",
+    "margin_loss",
+    "learner_steps",
+)
+"""The per-episode entries of the history that --track writes, under charts/ or losses/, at the episode's
+last env step (CleanRL's x axis)."""
 
 
 def default_run_name(args: Args) -> str:
@@ -294,12 +416,20 @@ def train(args: Args, progress: bool = True) -> dict:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
     if args.env.box_source == "none":
         raise ValueError("the DQN learns on the box state: env.box_source must be ground_truth or fcn")
+    if args.episodes % args.num_envs:
+        raise ValueError(
+            f"episodes={args.episodes} must be a multiple of num_envs={args.num_envs} (rounds of one each)"
+        )
+    run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
+    os.makedirs(run_dir, exist_ok=True)
+    writer = tensorboard_writer(run_dir) if args.track else None  # before anything slow: a missing extra fails now
     torch.set_num_threads(1)
     random.seed(args.seed)
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
-    env = make_env(args.env)
+    n = args.num_envs
+    env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)  # 6, or 7 with env.stay_action
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
@@ -310,81 +440,96 @@ def train(args: Args, progress: bool = True) -> dict:
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
-    policy = ExplorePolicy(env, then=learner) if args.explore else learner
-    servo = ServoPolicy(env)
-    demonstrator = ExplorePolicy(env, then=servo) if args.explore else servo
+    mixed = DemoOrLearner(ServoPolicy(env, hold=actions > len(DIRECTIONS)), learner)
+    actor = ExplorePolicy(env, then=mixed) if args.explore else mixed
     buffer = ReplayBuffer(args.buffer_size, state_dim)
-    window = NStepWindow(args.n_step, args.gamma)
-    learner_reward = LearnerReward(args, env.unwrapped.success_fraction)
+    windows = [NStepWindow(args.n_step, args.gamma) for _ in range(n)]
+    learner_rewards = [LearnerReward(args, args.env.success_fraction) for _ in range(n)]
+    trajectories = [Trajectory() for _ in range(n)]
 
-    run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
-    os.makedirs(run_dir, exist_ok=True)
     history, global_step, start = [], 0, time.time()
-    trajectory = Trajectory()
-    bar = tqdm(range(args.episodes), desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
+    bar = tqdm(total=args.episodes, desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
     try:
-        for episode in bar:
-            learner.epsilon = linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, episode)
-            obs, info = env.reset(seed=args.seed * TRAIN_SEED_STRIDE + episode)
-            demo = episode < args.demo_episodes
-            actor = demonstrator if demo else policy
-            actor.reset(obs, info)
-            learner.reset(obs, info)
-            trajectory.start(info)
-            learner_reward.reset(info)
-            losses, learner_steps, done = [], 0, False
-            while not done:
-                learner_acts = bool(actor.update(obs)[0]) if args.explore else True
-                state = learner.state(obs)[0]
-                action = actor.act(obs, info)
-                if demo:
-                    learner.last_action[:] = action  # the state's last direction is the actor's
-                next_obs, reward, terminated, truncated, info = env.step(action)
-                trajectory.append(reward, info)
-                terminated = bool(terminated[0]) or (args.end_at_success and bool(first_env(info, "success")))
-                done = terminated or bool(truncated[0])
-                reward_now = learner_reward(reward, info)
-                if learner_acts:  # the script's steps are not the learner's experience
-                    next_state = learner.state(next_obs)[0]
-                    for s0, a0, discounted, s_n, ended, steps in window.push(
-                        state, action[0], reward_now, next_state, terminated, done
-                    ):
-                        buffer.add(s0, a0, discounted, s_n, ended, steps)
-                        if args.mirror_augment:
-                            buffer.add(
-                                mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n), ended, steps
-                            )
-                    learner_steps += 1
-                obs = next_obs
-                global_step += 1
-
-                if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
-                    for _ in range(args.updates_per_step):
-                        batch = buffer.sample(args.batch_size, rng)
-                        loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
-                        optimizer.zero_grad()
-                        loss.backward()
-                        optimizer.step()
-                        losses.append(loss.item())
-                if args.target_network and global_step % args.target_update_steps == 0:
-                    target_network.load_state_dict(q_network.state_dict())
-
-            metrics = episode_metrics(trajectory)
-            history.append(
-                {
-                    "episode": episode,
-                    "epsilon": learner.epsilon,
-                    "learner_steps": learner_steps,
-                    "demo": demo,
-                    "td_loss": float(np.mean(losses)) if losses else math.nan,
-                    **metrics,
-                }
+        for first in range(0, args.episodes, n):  # a round: episodes first, ..., first + n - 1, one per env
+            episodes = np.arange(first, first + n)
+            learner.epsilon = np.array(
+                [linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, e) for e in episodes]
             )
+            mixed.demo = episodes < args.demo_episodes
+            seeds = [args.seed * TRAIN_SEED_STRIDE + int(e) for e in episodes]
+            obs, info = env.reset(seed=seeds[0] if n == 1 else seeds)
+            actor.reset(obs, info)
+            for i in range(n):
+                trajectories[i].start(env_info(info, i))
+                learner_rewards[i].reset(env_info(info, i))
+            losses, margins = [], []
+            learner_steps, learner_return = np.zeros(n, int), np.zeros(n)
+            running = np.ones(n, bool)  # the env's training episode goes on (a finished one idles to the round's end)
+            while running.any():
+                learner_acts = actor.update(obs).copy() if args.explore else np.ones(n, bool)
+                states = learner.state(obs)
+                action = actor.act(obs, info)
+                learner.last_action[mixed.demo] = action[mixed.demo]  # the state's last direction is the actor's
+                next_obs, reward, terminated, truncated, info = env.step(action)
+                final_obs, final_info = last_step(next_obs, info)  # before a vector env's same-step reset
+                next_states = learner.state(final_obs)
+                for i in np.flatnonzero(running):
+                    view = env_info(final_info, i)
+                    trajectories[i].append(reward[i : i + 1], view)
+                    ended = bool(terminated[i]) or (args.end_at_success and bool(first_env(view, "success")))
+                    done = ended or bool(truncated[i])
+                    reward_now = learner_rewards[i](reward[i : i + 1], view, stayed=action[i] == STAY_INDEX)
+                    learner_return[i] += reward_now
+                    if learner_acts[i]:  # the script's steps are not the learner's experience
+                        pushed = windows[i].push(states[i], action[i], reward_now, next_states[i], ended, done)
+                        for s0, a0, discounted, s_n, final, steps in pushed:
+                            buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
+                            if args.mirror_augment:
+                                mirrored = (mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n))
+                                buffer.add(*mirrored, final, steps, mixed.demo[i])
+                        learner_steps[i] += 1
+                    running[i] = not done
+                    global_step += 1  # the updates follow the env steps of the episodes, whatever the env count
+                    if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
+                        for _ in range(args.updates_per_step):
+                            losses_now = update(
+                                q_network, target_network, optimizer, buffer.sample(args.batch_size, rng), args
+                            )
+                            losses.append(losses_now[0])
+                            if args.demo_margin:
+                                margins.append(losses_now[1])
+                    if args.target_network and global_step % args.target_update_steps == 0:
+                        target_network.load_state_dict(q_network.state_dict())
+                obs = next_obs
+
+            for i, episode in enumerate(episodes):
+                metrics = episode_metrics(trajectories[i])
+                history.append(
+                    {
+                        "episode": int(episode),
+                        "epsilon": float(learner.epsilon[i]),
+                        "learner_steps": int(learner_steps[i]),
+                        "learner_return": float(learner_return[i]),
+                        "demo": bool(mixed.demo[i]),
+                        "td_loss": float(np.mean(losses)) if losses else math.nan,
+                        "margin_loss": float(np.mean(margins)) if margins else math.nan,
+                        **metrics,
+                    }
+                )
+                if writer is not None:
+                    for key in TRACKED:
+                        if not math.isnan(history[-1][key]):  # e.g. focus held of an unsuccessful episode
+                            group = "losses" if key.endswith("loss") else "charts"
+                            writer.add_scalar(f"{group}/{key}", history[-1][key], global_step)
+            bar.update(n)
             bar.set_postfix(
-                ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon:.3f}"
+                ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon[-1]:.3f}"
             )
     finally:
+        bar.close()
         env.close()
+        if writer is not None:
+            writer.close()
         checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far
         save_q_network(checkpoint, q_network, args)
         save_json(

@@ -25,9 +25,10 @@ import numpy as np
 import torch
 
 from mani_active_vision.agents.q_network import load_q_network
-from mani_active_vision.directions import DIRECTIONS
+from mani_active_vision.directions import DIRECTIONS, STAY, action_names
 
 LEFT, RIGHT, FORWARD, UP, DOWN = (DIRECTIONS.index(d) for d in ("left", "right", "forward", "up", "down"))
+STAY_INDEX = action_names(stay_action=True).index(STAY)
 
 
 def box_array(obs) -> np.ndarray:
@@ -44,13 +45,13 @@ def num_actions(env) -> int:
     return int(space.n) if isinstance(space, gym.spaces.Discrete) else int(space.nvec[0])
 
 
-def refused_array(info, num_envs: int) -> np.ndarray:
-    """Whether the last step was refused, per env (False at reset, when `info` has no `refused`)."""
-    if not info or "refused" not in info:
+def info_flags(info, key: str, num_envs: int) -> np.ndarray:
+    """`info[key]` (e.g. "refused", "success") per env as bools (False at reset, when `info` lacks it)."""
+    if not info or key not in info:
         return np.zeros(num_envs, dtype=bool)
-    refused = info["refused"]
-    refused = refused.cpu().numpy() if isinstance(refused, torch.Tensor) else np.asarray(refused)
-    return np.atleast_1d(refused).astype(bool)
+    flags = info[key]
+    flags = flags.cpu().numpy() if isinstance(flags, torch.Tensor) else np.asarray(flags)
+    return np.atleast_1d(flags).astype(bool)
 
 
 class RandomPolicy:
@@ -79,19 +80,25 @@ class Sweep:
         self.direction[:] = self.first
 
     def act(self, info) -> np.ndarray:
-        refused = refused_array(info, len(self.direction))
+        refused = info_flags(info, "refused", len(self.direction))
         self.direction[refused] = np.where(self.direction[refused] == LEFT, RIGHT, LEFT)
         return self.direction.copy()
 
 
 class ServoPolicy:
     """Scripted servo on the box: sweep until seen, centre the box (orbit for x, up/down for y) within
-    `center_tol`, then step forward (zoom in). The sweep reverses on a refused step."""
+    `center_tol`, then step forward (zoom in). The sweep reverses on a refused step.
 
-    def __init__(self, env, center_tol: float = 0.1, first_sweep: str = "left"):
+    With `hold` it takes `stay` (the env needs `stay_action`) while the task reports success: privileged
+    (`info["success"]` is the ground truth), a teacher for the DQN's demonstrations that shows holding."""
+
+    def __init__(self, env, center_tol: float = 0.1, first_sweep: str = "left", hold: bool = False):
         self.num_envs = env.unwrapped.num_envs
         self.center_tol = center_tol
         self.sweep = Sweep(self.num_envs, DIRECTIONS.index(first_sweep))
+        if hold and num_actions(env) == len(DIRECTIONS):
+            raise ValueError("ServoPolicy(hold=True) takes `stay`: make the env with stay_action")
+        self.hold = hold
 
     def reset(self, obs, info):
         self.sweep.reset()
@@ -107,6 +114,8 @@ class ServoPolicy:
         action[off_x] = np.where(cx[off_x] < 0.5, LEFT, RIGHT)
         unseen = w <= 0
         action[unseen] = sweep[unseen]
+        if self.hold:
+            action[info_flags(info, "success", self.num_envs)] = STAY_INDEX
         return action.astype(np.int64)
 
 

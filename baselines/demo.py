@@ -2,11 +2,14 @@
 draw its learning curves and record it.
 
 Trains `agents.dqn` (the paper's network and schedule: 100 episodes, ε 0.1 -> 0.02, 20 hidden units; by
-default with the `shaped` learner's reward, without which it does not learn in 100 episodes) on the
+default the `hold_demo` preset: the shaped learner's reward, without which it does not learn in 100 episodes,
+paying for time in success, the scripted servo acting the first 10 episodes; docs/control.md) on the
 ground-truth box (privileged training: learning on the FCN's box, whose false positives jump between
 look-alike objects, failed), then evaluates the greedy agent (exploration, then the DQN) on fixed
-evaluation seeds acting on the box from the shipped FCN — as deployed — and on the ground-truth box,
-records the first FCN episodes to a Rerun file, prints the tables and where everything was written.
+evaluation seeds (unseen objects) acting on the box from the shipped FCN — as deployed — and on the ground-truth box,
+records the first FCN episodes to a Rerun file, prints the tables and where everything was written. It then
+evaluates the shipped agent (`agents/weights/dqn.pt`, scripts/make_dqn.sh) as deployed, on the FCN's box and
+unseen objects, on the same episode seeds.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import tyro
 
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.agents.q_network import checkpoint_env_config
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
@@ -34,12 +38,14 @@ class Args:
     """the env the DQN learns in (its box_source is the training box: ground_truth by default)"""
     seed: int = 0
     """training seed"""
-    preset: str = "shaped"
-    """the DQN's configuration: shaped (the paper's network and schedule with a shaped reward) or paper"""
+    preset: str = "hold_demo"
+    """the DQN's configuration (agents.dqn.PRESETS): hold_demo, shaped_demo, hold, shaped, paper"""
     episodes: int = 100
     """training episodes (paper: 100)"""
     eval_episodes: int = 10
     """greedy evaluation episodes (seeds from 1,000,000)"""
+    eval_object_set: str = "unseen"
+    """the objects of the evaluation and recorded episodes (training uses env.object_set: train)"""
     box_source: str = "fcn"
     """the box the agent acts on when evaluated and recorded: fcn (the shipped one-shot segmentation network,
     as in the paper) or ground_truth; the other one is evaluated too"""
@@ -49,6 +55,8 @@ class Args:
     """evaluation episodes (the first ones) to record to a Rerun file (0: none)"""
     recording: str = "recordings/demo.rrd"
     """the Rerun file of the recorded episodes"""
+    shipped: str = "agents/weights/dqn.pt"
+    """the shipped DQN, evaluated as deployed (its checkpoint's env: the FCN's box, unseen objects); empty: skip"""
 
 
 def main(args: Args):
@@ -78,19 +86,27 @@ def main(args: Args):
 
     evaluations, metrics = {}, os.path.join(args.out_dir, "evaluation.json")
     other = "ground_truth" if args.box_source == "fcn" else "fcn"
-    for box_source in (args.box_source, other):
-        env = make_env(args.env.replace(box_source=box_source))
+    runs = [
+        (f"explore→dqn, {b} box", args.env.replace(box_source=b, object_set=args.eval_object_set), result["checkpoint"])
+        for b in (args.box_source, other)
+    ]
+    if args.shipped:
+        env = checkpoint_env_config(args.shipped)
+        runs.append((f"shipped {args.shipped}, {env.box_source} box, {env.object_set} objects", env, args.shipped))
+    for name, config, checkpoint in runs:
+        env = make_env(config)
         try:
-            policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
-            episodes = evaluate(env, policy, eval_seeds(args.eval_episodes), desc=f"evaluate ({box_source} box)")
+            policy = make_policy("explore", env, then="dqn", checkpoint=checkpoint, seed=args.seed)
+            episodes = evaluate(env, policy, eval_seeds(args.eval_episodes), desc=f"evaluate {name}")
         finally:
             env.close()
-        evaluations[f"explore→dqn, {box_source} box"] = {"summary": summarize(episodes), "episodes": episodes}
+        evaluations[name] = {"summary": summarize(episodes), "episodes": episodes}
     save_json(evaluations, metrics)
     print(markdown_table({name: evaluation["summary"] for name, evaluation in evaluations.items()}))
 
     if args.record_episodes:
-        with RerunRecorder(make_env(args.env.replace(box_source=args.box_source)), args.recording) as env:
+        recorded = args.env.replace(box_source=args.box_source, object_set=args.eval_object_set)
+        with RerunRecorder(make_env(recorded), args.recording) as env:
             policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
             evaluate(env, policy, eval_seeds(args.record_episodes), with_reference=False, desc="record")
     print("outputs:")

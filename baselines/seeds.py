@@ -3,9 +3,12 @@ greedy agent is evaluated on the same held-out episodes; a table per seed, mean 
 worst seed, beside the scripted servo on the same episodes.
 
     python baselines/seeds.py --preset hold --seeds 0 1 2 3 4 --eval-episodes 50 --eval-object-set unseen
+    python baselines/seeds.py --preset hold_demo --set demo_episodes=20 demo_margin=0.8 --name hold_demo20_margin
 
-Runs are kept under `out_dir/preset/seed<k>` and skipped when finished, so one seed at a time can be run
-(`--seeds 3`) and the table made from all finished ones (`--report-only`). The reference's steps (for SPL)
+`--set` changes options of the preset (an option tried, not yet a preset), `--name` names its runs.
+Runs are kept under `out_dir/name/seed<k>` and skipped when finished, so one seed at a time can be run
+(`--seeds 3`) and the table made from all finished ones (`--report-only`); a finished training is only
+evaluated, so `--eval-box-source fcn` evaluates the same agents on the FCN's box (eval_fcn.json beside eval.json). The reference's steps (for SPL)
 and the servo's evaluation are measured once per evaluation env and episode count, and cached.
 """
 
@@ -35,7 +38,11 @@ COLUMNS = ("success", "success_final", "focus_held", "spl", "steps_to_success")
 @dataclass
 class Args:
     preset: str = "hold"
-    """the DQN preset (agents.dqn.PRESETS: paper, shaped, hold)"""
+    """the DQN preset (agents.dqn.PRESETS: paper, shaped, hold, ...)"""
+    set: list[str] = field(default_factory=list)
+    """options of agents.dqn.Args changed from the preset's, as name=value (a JSON value: 20, 0.8, true)"""
+    name: str = ""
+    """the runs' folder and label (default: the preset's name)"""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
     """training seeds"""
     episodes: int = 100
@@ -68,6 +75,23 @@ def cached(path: str, key: dict, compute):
     value = compute()
     save_json({"key": key, "value": value}, path)
     return value
+
+
+def label(args: Args) -> str:
+    return args.name or args.preset
+
+
+def train_options(args: Args) -> dict:
+    """`--set`'s name=value pairs, checked against agents.dqn.Args (the run's env, seed, episodes and folder
+    are this script's)."""
+    fields = {f.name for f in dataclasses.fields(dqn.Args)} - {"env", "seed", "episodes", "run_dir", "run_name"}
+    options = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        if key not in fields:
+            raise ValueError(f"--set {item!r}: {key!r} is not one of: {', '.join(sorted(fields))}")
+        options[key] = json.loads(value)
+    return options
 
 
 def eval_env_config(args: Args) -> EnvConfig:
@@ -103,13 +127,27 @@ def evaluate_policy(args: Args, name: str, **kwargs) -> dict:
     return {"summary": summarize(episodes), "episodes": episodes}
 
 
+def eval_path(args: Args, seed_dir: str) -> str:
+    """A seed's evaluation: eval.json on the ground-truth box, eval_<box>.json on another."""
+    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
+    return os.path.join(seed_dir, f"eval{box}.json")
+
+
 def run_seed(args: Args, seed: int):
-    run_dir = os.path.join(args.out_dir, args.preset)
-    eval_path = os.path.join(run_dir, f"seed{seed}", "eval.json")
-    if os.path.exists(eval_path):
+    """Train the seed unless its training finished, then evaluate it unless already evaluated on this box."""
+    run_dir = os.path.join(args.out_dir, label(args))
+    path = eval_path(args, os.path.join(run_dir, f"seed{seed}"))
+    if os.path.exists(path):
+        return
+    history = os.path.join(run_dir, f"seed{seed}", "history.json")
+    if os.path.exists(history) and read_json(history)["complete"]:
+        checkpoint = os.path.join(run_dir, f"seed{seed}", "q_network.pt")
+        result = evaluate_policy(args, "explore", then="dqn", checkpoint=checkpoint, seed=seed)
+        save_json({"eval_env": dataclasses.asdict(eval_env_config(args)), **result}, path)
         return
     train_args = dataclasses.replace(
         dqn.PRESETS[args.preset][1],
+        **train_options(args),
         env=args.env,
         seed=seed,
         episodes=args.episodes,
@@ -117,13 +155,12 @@ def run_seed(args: Args, seed: int):
         run_dir=run_dir,
         run_name=f"seed{seed}",
     )
-    checkpoint = dqn.train(train_args)["checkpoint"]
-    result = evaluate_policy(args, "explore", then="dqn", checkpoint=checkpoint, seed=seed)
-    save_json({"eval_env": dataclasses.asdict(eval_env_config(args)), **result}, eval_path)
+    dqn.train(train_args)
+    run_seed(args, seed)
 
 
 def report(args: Args) -> str:
-    run_dir = os.path.join(args.out_dir, args.preset)
+    run_dir = os.path.join(args.out_dir, label(args))
     rows, summaries = [], []
     header = (
         "| run | training s | training success, last 10 | success | success at end | focus held | SPL "
@@ -131,21 +168,21 @@ def report(args: Args) -> str:
     )
     for seed_dir in sorted(os.listdir(run_dir)) if os.path.isdir(run_dir) else []:
         path = os.path.join(run_dir, seed_dir)
-        if not os.path.exists(os.path.join(path, "eval.json")):
+        if not os.path.exists(eval_path(args, path)):
             continue
         history = read_json(os.path.join(path, "history.json"))
-        summary = read_json(os.path.join(path, "eval.json"))["summary"]
+        summary = read_json(eval_path(args, path))["summary"]
         summaries.append(summary)
         last10 = np.mean([h["success"] for h in history["history"][-10:]])
-        rows.append(f"| {args.preset} {seed_dir} | {history['seconds']:.0f} | {last10:.2f} | " + cells(summary) + " |")
+        rows.append(f"| {label(args)} {seed_dir} | {history['seconds']:.0f} | {last10:.2f} | " + cells(summary) + " |")
     lines = [header, "|" + "---|" * 8, *rows]
     if summaries:
         means = {k: spread([s[k] for s in summaries]) for k in COLUMNS}
         lines.append(
-            f"| **{args.preset}: mean ± std over {len(summaries)} seeds** | | | " + " | ".join(means.values()) + " |"
+            f"| **{label(args)}: mean ± std over {len(summaries)} seeds** | | | " + " | ".join(means.values()) + " |"
         )
         worst = min(summaries, key=lambda s: s["success"])
-        lines.append(f"| {args.preset}: worst seed (by success) | | | " + cells(worst) + " |")
+        lines.append(f"| {label(args)}: worst seed (by success) | | | " + cells(worst) + " |")
     servo = os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}.json")
     if os.path.exists(servo):
         lines.append("| servo (scripted) | | | " + cells(read_json(servo)["value"]["summary"]) + " |")
@@ -155,7 +192,8 @@ def report(args: Args) -> str:
         f"{args.eval_box_source} box; focus held over the successful episodes; in the mean row, focus held and steps "
         "to success are over the seeds where they exist)\n"
     )
-    with open(os.path.join(args.out_dir, f"{args.preset}_table.md"), "w") as f:
+    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
+    with open(os.path.join(args.out_dir, f"{label(args)}{box}_table.md"), "w") as f:
         f.write(table + note)
     return table
 
@@ -172,6 +210,7 @@ def main(args: Args):
     torch.set_num_threads(1)
     if args.preset not in dqn.PRESETS:
         raise ValueError(f"preset={args.preset!r} is not one of: {', '.join(dqn.PRESETS)}")
+    train_options(args)  # a wrong --set fails before anything runs
     if not args.report_only:
         key = {"env": dataclasses.asdict(eval_env_config(args)), "episodes": args.eval_episodes}
         cached(

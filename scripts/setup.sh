@@ -3,8 +3,9 @@
 #   1. Mesa 25 lavapipe (software Vulkan) from Debian's bookworm-backports suite, which SAPIEN needs;
 #   2. a virtualenv at .venv in the repository root;
 #   3. torch 2.13.0 (local CPU wheel) *before* anything that depends on torch;
-#   4. this package with its dev and distributed extras (mani-skill, sapien, rerun-sdk, pybullet, pytest,
-#      ruff; Ray, which the tests of the Ray backend and sweeps need: docs/distributed.md).
+#   4. this package with its dev, distributed and track extras (mani-skill, sapien, rerun-sdk, pybullet, pytest,
+#      ruff; Ray, which the tests of the Ray backend and sweeps need: docs/distributed.md; TensorBoard, which
+#      the DQN's --track and its test need).
 # Each step is skipped when already done. Fails with a clear message when something cannot be installed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -54,10 +55,10 @@ fi
 
 stamp=.venv/.mani-active-vision-installed
 if [ -f "$stamp" ] && [ "$stamp" -nt pyproject.toml ]; then
-  say "mani-active-vision[dev,distributed] already installed"
+  say "mani-active-vision[dev,distributed,track] already installed"
 else
-  say "installing mani-active-vision (editable) with dev and distributed extras"
-  "$VPY" -m pip install -q -e '.[dev,distributed]' || die "could not install the package; see pip's message above"
+  say "installing mani-active-vision (editable) with dev, distributed and track extras"
+  "$VPY" -m pip install -q -e '.[dev,distributed,track]' || die "could not install the package; see pip's message above"
   touch "$stamp"
 fi
 say "done"

@@ -1,12 +1,16 @@
 """Control: the DQN's pieces, the policies, the metrics and a short end-to-end training run."""
 
 import dataclasses
+import importlib.util
 import json
 import math
 import os
+import re
 import subprocess
 import sys
+import types
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -206,6 +210,92 @@ def test_a_short_training_run_end_to_end(tmp_path):
     policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"])
     episodes = evaluate(env, policy, [1_000_000], with_reference=False)
     assert set(episodes[0]) >= {"success", "spl", "steps_to_see", "return"}
+
+
+def test_track_writes_the_training_scalars_to_tensorboard(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    args = dqn.Args(
+        env=EnvConfig(max_episode_steps=20), episodes=2, learning_starts=10, run_dir=str(tmp_path), track=True
+    )
+    result = dqn.train(args, progress=False)
+    events = EventAccumulator(result["run_dir"]).Reload()
+    assert {"charts/return", "charts/success", "charts/epsilon", "losses/td_loss"} <= set(events.Tags()["scalars"])
+    returns = events.Scalars("charts/return")
+    assert [e.value for e in returns] == pytest.approx([h["return"] for h in result["history"]])
+    assert [e.step for e in returns] == [20, 40]  # CleanRL's x axis: the env steps so far
+    assert [e.value for e in events.Scalars("charts/epsilon")] == pytest.approx([0.1, 0.02])
+    assert os.path.exists(os.path.join(result["run_dir"], "history.json"))  # the history as without --track
+
+
+def test_track_without_tensorboard_says_how_to_install_it(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # importing it now fails
+    with pytest.raises(ImportError, match=re.escape("pip install -e '.[track]'")):
+        dqn.train(dqn.Args(run_dir=str(tmp_path), track=True), progress=False)
+    assert not any(name.endswith("q_network.pt") for _, _, files in os.walk(tmp_path) for name in files)
+
+
+def test_margin_loss_is_zero_once_the_demonstrators_action_leads_by_the_margin():
+    q_network = dqn.QNetwork(4, 8, 6)
+    with torch.no_grad():  # Q = the bias: action 2 leads every other by 1
+        q_network.network[2].weight.zero_()
+        q_network.network[2].bias.copy_(torch.tensor([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
+    batch = {"states": torch.rand(4, 4), "actions": torch.tensor([2, 2, 0, 5]), "demo": torch.tensor([1, 1, 1, 0]) > 0}
+    # demonstrations 2 and 2 lead by 1 >= 0.8: no loss; demonstration 0 trails action 2 by 1, plus the margin
+    assert dqn.margin_loss(q_network, batch, 0.8).item() == pytest.approx((0 + 0 + 1.8) / 3)
+    assert dqn.margin_loss(q_network, {**batch, "demo": torch.zeros(4, dtype=torch.bool)}, 0.8).item() == 0
+
+
+def test_the_holding_servo_stays_in_success_only():
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(7))
+    servo = make_policy("servo", env, hold=True)
+    centred_and_close = np.array([[0.35, 0.35, 0.3, 0.3], [0.35, 0.35, 0.3, 0.3]])
+    action = servo.act(centred_and_close, {"success": np.array([True, False]), "refused": np.zeros(2, bool)})
+    assert action.tolist() == [6, FORWARD]  # stay where the task says success, else the servo's step
+    with pytest.raises(ValueError, match="stay_action"):
+        make_policy(
+            "servo", types.SimpleNamespace(unwrapped=env.unwrapped, action_space=gym.spaces.Discrete(6)), hold=True
+        )
+
+
+def test_batched_training_plays_the_same_episodes_as_one_env(tmp_path):
+    # two demonstration episodes: what happens in them does not depend on the network, so one env and two
+    # worker processes (one episode each, at once) must give the same episodes and the same transitions
+    args = dqn.Args(**dqn.HOLD, demo_episodes=2, env=EnvConfig(max_episode_steps=15), episodes=2, run_dir=str(tmp_path))
+    one, two = (dqn.train(dataclasses.replace(args, num_envs=n, run_name=f"n{n}"), progress=False) for n in (1, 2))
+    keys = ("episode", "demo", "epsilon", "learner_steps", "learner_return", "return", "final_target_fraction")
+    assert [[h[k] for k in keys] for h in two["history"]] == [[h[k] for k in keys] for h in one["history"]]
+    assert two["transitions"] == one["transitions"] > 0
+    with pytest.raises(ValueError, match="must be a multiple of num_envs=2"):
+        dqn.train(dataclasses.replace(args, episodes=3, num_envs=2), progress=False)
+
+
+def test_the_shipped_dqn_loads_and_acts_as_deployed():
+    path = os.path.join(ROOT, "agents", "weights", "dqn.pt")
+    config = torch.load(path, weights_only=True)["config"]  # weights and plain data only
+    deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+    assert (deployed.box_source, deployed.object_set) == ("fcn", "unseen")  # evaluate.py starts from this env
+    assert trained.box_source == "ground_truth" and deployed == trained.replace(box_source="fcn", object_set="unseen")
+    env = mav.make_env(deployed.replace(max_episode_steps=25))
+    try:
+        policy = make_policy("explore", env, then="dqn", checkpoint=path)
+        episode = evaluate(env, policy, [1_000_000], with_reference=False)[0]
+    finally:
+        env.close()
+    assert policy.handed_over.all() and policy.then.last_action[0] >= 0  # the target was seen and the DQN acted
+    assert episode["steps_to_see"] < 25
+
+
+def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(monkeypatch):
+    spec = importlib.util.spec_from_file_location("seeds", os.path.join(ROOT, "baselines", "seeds.py"))
+    seeds = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "seeds", seeds)  # its dataclasses look their module up there
+    spec.loader.exec_module(seeds)
+    args = seeds.Args(preset="hold_demo", set=["demo_episodes=20", "demo_margin=0.8", "double_dqn=false"])
+    assert seeds.train_options(args) == {"demo_episodes": 20, "demo_margin": 0.8, "double_dqn": False}
+    assert seeds.label(args) == "hold_demo" and seeds.label(dataclasses.replace(args, name="x")) == "x"
+    with pytest.raises(ValueError, match="'seed' is not one of"):  # the script's own, not the preset's
+        seeds.train_options(dataclasses.replace(args, set=["seed=3"]))
 
 
 def test_mirrored_transitions_and_shaping_potentials():

@@ -123,6 +123,10 @@ def test_learner_reward_pays_the_bonus_once_then_time_in_success():
     shaped.reset(info(False))
     assert [shaped(env_reward, info(True)) for _ in range(2)][1] == pytest.approx(-0.02)  # shaped: no hold reward
     assert dqn.PRESETS["hold"][1].hold_reward == 0.2 and not dqn.PRESETS["hold"][1].end_at_success
+    still = dqn.LearnerReward(dqn.Args(step_cost=0.02, stay_penalty=0.1), success_fraction=0.05)
+    still.reset(info(False))
+    paid = [still(env_reward, info(s), stayed=stayed) for s, stayed in [(False, True), (True, True), (False, False)]]
+    assert paid == pytest.approx([-0.12, -0.02, -0.02])  # a stay costs only out of success
     with pytest.raises(ValueError, match="hold_reward=0.2 pays for time in success.*--no-end-at-success"):
         dqn.train(dqn.Args(**{**dqn.HOLD, "end_at_success": True}), progress=False)
 

@@ -1,0 +1,49 @@
+"""Make a DQN checkpoint the shipped agent: a copy whose env (what evaluation starts from) is the deployed one,
+the FCN's box on unseen objects, with the env it was trained in kept as config["trained_env"].
+
+    python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt
+
+scripts/make_dqn.sh makes the shipped agent this way; `baselines/evaluate.py --policy explore --then dqn
+--checkpoint agents/weights/dqn.pt` then evaluates it as deployed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+
+import torch
+import tyro
+
+from mani_active_vision.envs import EnvConfig
+
+
+@dataclass
+class Args:
+    checkpoint: str
+    """the trained DQN checkpoint (q_network.pt)"""
+    out: str = "agents/weights/dqn.pt"
+    """where the shipped checkpoint goes"""
+    box_source: str = "fcn"
+    """the deployed box: the FCN's (as in the paper)"""
+    object_set: str = "unseen"
+    """the deployed objects: never seen in training"""
+
+
+def ship(args: Args) -> EnvConfig:
+    """Copy the checkpoint with the deployed env (its training env with the box and objects changed)."""
+    saved = torch.load(args.checkpoint, map_location="cpu", weights_only=True)
+    config = saved["config"]
+    trained = config.get("trained_env", config["env"])
+    env = EnvConfig.from_dict(trained).replace(box_source=args.box_source, object_set=args.object_set)
+    saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    torch.save(saved, args.out)
+    return env
+
+
+if __name__ == "__main__":
+    args = tyro.cli(Args)
+    env = ship(args)
+    print(f"{args.checkpoint} -> {args.out}: deployed on the {env.box_source} box, {env.object_set} objects")
