@@ -158,7 +158,7 @@ class OneShotFCN(nn.Module):
         if self.config.target_pooling == "max":
             vectors = [t.amax((2, 3), keepdim=True) for t in features]
         else:
-            pixels = (target - TARGET_BACKGROUND).abs().amax(1, keepdim=True).gt(0.5 / 255).float()
+            pixels = _target_pixels(target).unsqueeze(1).float()
             pixels = torch.where(pixels.flatten(1).any(1).view(-1, 1, 1, 1), pixels, torch.ones_like(pixels))
             vectors = []
             for t in features:
@@ -305,10 +305,15 @@ class OneShotFCN(nn.Module):
         return (keep_largest_component(mask) if largest_component else mask), presence
 
 
+def _target_pixels(target: torch.Tensor) -> torch.Tensor:
+    """(N, h, w) bool: the pixels of normalised target images (N, 3, h, w) that are not the grey background."""
+    return (target - TARGET_BACKGROUND).abs().amax(1).gt(0.5 / 255)
+
+
 def _box_grid(target: torch.Tensor, size: int) -> torch.Tensor:
     """A `grid_sample` grid (N, size, size, 2) over each target image's bounding box of non-grey pixels (the
     whole image if it has none)."""
-    pixels = (target - TARGET_BACKGROUND).abs().amax(1).gt(0.5 / 255)  # (N, h, w)
+    pixels = _target_pixels(target)
     height, width = pixels.shape[1:]
     rows, cols = pixels.any(2), pixels.any(1)
     steps = [torch.arange(n, dtype=target.dtype, device=target.device) for n in (height, width)]
