@@ -11,7 +11,8 @@ pixels are where per-sample IoU is lowest); IoU (≥20 px): over samples with at
 second table splits the target IoU by the target's share of the image. Rollout-frame sets
 (`baselines/collect_rollout_frames.py`) also get a table of what the false positives on target-absent
 frames lie on (an identical twin, a same-shape or same-colour distractor, another object, floor, robot)
-and the same metrics per source policy.
+and the same metrics per source policy, and, for scenes with occluders, the target IoU on frames where a
+panel hides part of the target beside those where none does.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import tyro
 
 from mani_active_vision.agents.fcn import WEIGHTS_PATH, dataset_counts, load_checkpoint, summarize_counts
 from mani_active_vision.evaluation.rollout_frames import SOURCES, attribute_false_positives
+from mani_active_vision.occluders import MIN_VISIBLE_FRACTION
 from mani_active_vision.segmentation_data import load_segmentation_data
 
 
@@ -138,6 +140,20 @@ def rollout_tables(model, data: dict, counts: dict, name: str, largest_component
             f"| {source} | {int(sel.sum())} ({m['samples_with_target']}) | {m['target_iou']:.3f} | "
             f"{m20['target_iou']:.3f} | {m['false_positive_rate']:.3f} | {m['box_error']:.3f} |"
         )
+    if "visible_fraction" in data and (data["visible_fraction"] < MIN_VISIBLE_FRACTION).any():
+        lines += ["", f"{name} by occlusion (frames with the target):", ""]
+        lines += ["| target | frames | target IoU | IoU (≥20 px) | miss rate |", "|---|---|---|---|---|"]
+        visible, present = torch.from_numpy(data["visible_fraction"]), counts["true"] > 0
+        for label, sel in (
+            ("not hidden", present & (visible >= MIN_VISIBLE_FRACTION)),
+            ("partly hidden by a panel", present & (visible < MIN_VISIBLE_FRACTION)),
+        ):
+            part = {k: v[sel] for k, v in counts.items()}
+            m = summarize_counts(part)
+            m20 = summarize_counts({k: v[part["true"] >= 20] for k, v in part.items()})
+            lines.append(
+                f"| {label} | {int(sel.sum())} | {m['target_iou']:.3f} | {m20['target_iou']:.3f} | {m['miss_rate']:.3f} |"
+            )
     return lines
 
 

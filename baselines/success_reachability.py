@@ -23,7 +23,8 @@ from tqdm import tqdm
 import mani_active_vision  # noqa: F401
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.evaluation.views import candidate_positions, meets, view_stats
-from mani_active_vision.robots.orbit_controller import solve_ik
+from mani_active_vision.occluders import points_inside
+from mani_active_vision.robots.orbit_controller import arm_points, camera_end, solve_ik
 
 
 @dataclass
@@ -37,12 +38,21 @@ class Args:
     """"random", or "fixed" (the paper's fixed scene: then one placement is enough)"""
     fractions: tuple[float, ...] = (0.05, 0.10, 0.15, 0.20)
     tolerances: tuple[float, ...] = (0.10, 0.15, 0.20)
+    occluders: int = 0
+    """panels per scene (the task's `occluders`): views with the camera end of the arm in a panel are left out"""
+    whole_arm: bool = False
+    """also leave out views where any part of the arm (radius ~6 cm) passes through a panel (the controller
+    checks only the camera end)"""
 
 
 def main(args: Args):
     torch.set_num_threads(1)
     config = EnvConfig(
-        start_pose="search", object_set=args.object_set, placement=args.placement, image_size=args.resolution
+        start_pose="search",
+        object_set=args.object_set,
+        placement=args.placement,
+        image_size=args.resolution,
+        occluders=args.occluders,
     )
     env = gym.make(ENV_ID, **config.task_kwargs())
     base = env.unwrapped
@@ -57,13 +67,18 @@ def main(args: Args):
         )
         qpos, ok = solve_ik(points, controller.config.pitch)
         ok &= qpos[:, 3] <= controller.config.max_elbow
+        panels = base.panel_layout().expand(len(points), -1, -1)
+        ok &= ~points_inside(camera_end(points, controller.config.pitch), panels).any(-1)
+        if args.whole_arm:
+            ok &= ~points_inside(arm_points(qpos), panels, margin=0.06).any(-1)
         stats = {k: v[:, None, None] for k, v in view_stats(base, qpos[ok]).items()}  # (views, 1, 1)
         fractions, tolerances = np.array(args.fractions)[:, None], np.array(args.tolerances)[None, :]
         reachable += meets(stats, fractions, tolerances).any(0)
     env.close()
     share = reachable / args.placements
     print(
-        f"\nShare of {args.placements} {args.placement} placements ({args.object_set} objects, {args.resolution}²) where some view"
+        f"\nShare of {args.placements} {args.placement} placements ({args.object_set} objects, {args.resolution}², "
+        f"{args.occluders} occluders) where some view"
     )
     print("is fully in view with target share >= fraction and centroid within tolerance·W of the centre:\n")
     print("| fraction \\ tolerance | " + " | ".join(f"{t:.2f}" for t in args.tolerances) + " |")

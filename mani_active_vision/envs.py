@@ -58,6 +58,9 @@ class EnvConfig:
     """FCN checkpoint for box_source=fcn (empty: the shipped agents/weights/fcn.pt)"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
+    occluders: int = 0
+    """upright panels that hide objects from the search height, one in front of each of the first
+    `occluders` objects (0 to num_objects; docs/task.md#occluders)"""
     stay_action: bool = False
     """a seventh action, stay (index 6, a zero step), so that an agent can hold a view (not the paper's:
     its six directions stay the default; docs/control.md)"""
@@ -89,6 +92,7 @@ class EnvConfig:
             terminate_on_success=self.terminate_on_success,
             reward_mode=self.reward_mode,
             target_image_size=self.target_image_size,
+            occluders=self.occluders,
         )
 
     def replace(self, **changes) -> EnvConfig:

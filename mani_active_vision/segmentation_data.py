@@ -33,8 +33,9 @@ from tqdm import tqdm
 
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.objects import OBJECT_SETS
+from mani_active_vision.occluders import points_inside
 from mani_active_vision.robots.iiwa import CAMERA_PITCH
-from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik
+from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, camera_end, solve_ik
 from mani_active_vision.threads import WorkerThreads, use_worker_threads, worker_threads
 
 VIEW_MODES = ("target", "distractor", "anywhere", "lookalike")
@@ -56,6 +57,8 @@ class SegmentationDataConfig:
     the controller's workspace is 0.10-1.05"""
     aim_jitter: float = 0.35
     """std of the aim point's offset from the object, as a fraction of the camera height (m per m)"""
+    occluders: int = 0
+    """the task's panels per scene (partly occluded targets; views with the camera in a panel are redrawn)"""
 
     def __post_init__(self):
         if self.object_set not in OBJECT_SETS:
@@ -71,18 +74,27 @@ class SegmentationDataConfig:
 def make_data_env(config: SegmentationDataConfig) -> gym.Env:
     """The env a data set is rendered from (rgb + segmentation at `image_size`², CPU renderer)."""
     env_config = EnvConfig(
-        start_pose="search", num_objects=config.num_objects, object_set=config.object_set, image_size=config.image_size
+        start_pose="search",
+        num_objects=config.num_objects,
+        object_set=config.object_set,
+        image_size=config.image_size,
+        occluders=config.occluders,
     )
     return gym.make(ENV_ID, **env_config.task_kwargs())
 
 
 def sample_camera_position(
-    rng: np.random.Generator, object_xy: np.ndarray, config: SegmentationDataConfig, lookalikes: tuple[int, ...] = ()
+    rng: np.random.Generator,
+    object_xy: np.ndarray,
+    config: SegmentationDataConfig,
+    lookalikes: tuple[int, ...] = (),
+    panels: torch.Tensor | None = None,
 ) -> tuple[np.ndarray, str, np.ndarray]:
     """A reachable camera (link 7) position (3,), its view mode and its joint positions (7,).
 
     `object_xy` (K, 2): the objects' floor positions, row 0 the target; `lookalikes`: the rows of the
-    distractors that share the target's colour or shape (what "lookalike" views aim at).
+    distractors that share the target's colour or shape (what "lookalike" views aim at); `panels` (1, P, 3):
+    the task's occluders, which the camera end of the arm keeps out of (as the controller does).
     """
     controller = OrbitEEPosControllerConfig  # its workspace bounds (class defaults)
     mode = VIEW_MODES[rng.choice(len(VIEW_MODES), p=config.view_mode_probs)]
@@ -108,6 +120,10 @@ def sample_camera_position(
             and controller.min_radius <= radius <= controller.max_radius
             and float(qpos[0, 3]) <= controller.max_elbow
         )
+        if reachable and panels is not None and panels.shape[1]:
+            reachable = not bool(
+                points_inside(camera_end(torch.tensor(pos[None], dtype=torch.float32), CAMERA_PITCH), panels).any()
+            )
         if reachable:
             return pos, mode, qpos[0].numpy()
     raise RuntimeError(f"no reachable camera pose found for mode {mode!r} near objects {object_xy.tolist()}")
@@ -128,7 +144,7 @@ def render_scene_views(
     lookalikes = tuple(k for k in range(1, len(names)) if names[k] == names[0] or np.allclose(colors[k], colors[0]))
     scenes, masks, modes = [], [], []
     for _ in range(config.views_per_scene):
-        _, mode, qpos = sample_camera_position(rng, object_xy, config, lookalikes)
+        _, mode, qpos = sample_camera_position(rng, object_xy, config, lookalikes, base.panel_layout())
         base.agent.robot.set_qpos(torch.as_tensor(qpos)[None])
         base._hand_images = None  # the task caches one render per step; this is a new view
         images = base._hand_camera_images()

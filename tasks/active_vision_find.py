@@ -15,9 +15,13 @@ vertical axis, 60° down, horizon level), so `pd_ee_delta_pos` moves it around t
   wedge the camera cannot centre), at least 0.15 m apart, random yaw. `"fixed"`: the same scene every
   episode (the paper's first experiment).
 - The arm starts at `start_pose`: `"sky"` (qpos = 0, pointing up, as in the paper) or `"search"`.
+- `occluders=k` (default 0): k upright panels, 50 cm tall, each between the robot's base and object i < k
+  (object 0 is the target) at a random sideways offset, never within 2 cm of an object or another panel:
+  from the search height they hide all, part or none of that object (`mani_active_vision.occluders`).
 
 **Success Conditions:**
-The target is fully in view (no target pixel on the image border), its centroid within
+The target is fully in view (no target pixel on the image border, and at least `min_visible_fraction` of
+its pixels not hidden behind an occluder: `info["target_visible_fraction"]`), its centroid within
 `success_center_tol` of the image width from the centre, and it covers at least `success_fraction` of
 the image. Defaults 0.05 and 0.15 (≈19 px at 128²): a privileged planner
 (`baselines/success_reachability.py`, 40 random placements) met them for 93% of placements, against 90%
@@ -50,7 +54,9 @@ from mani_active_vision.brdf_lut import supply_brdf_lut
 from mani_active_vision.culling import ViewCuller
 from mani_active_vision.floor import build_floor
 from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, object_set
-from mani_active_vision.robots.iiwa import IiwaWristCam
+from mani_active_vision.occluders import MIN_VISIBLE_FRACTION, build_panel, place_panels
+from mani_active_vision.robots.iiwa import CAMERA_PITCH, SEARCH_POS, IiwaWristCam
+from mani_active_vision.robots.orbit_controller import camera_end
 
 PLACEMENTS = ("random", "fixed")
 START_POSES = ("sky", "search")
@@ -98,6 +104,8 @@ class ActiveVisionFindEnv(BaseEnv):
     ManiSkill does: `baselines/profile_step.py` compares both)"""
     collect_every = 10
     """a full garbage collection at every this many new scenes on the CPU (ManiSkill: every one; see `_clear`)"""
+    min_visible_fraction = MIN_VISIBLE_FRACTION
+    """success needs at least this share of the target's pixels in view not hidden by a panel"""
 
     def __init__(
         self,
@@ -112,6 +120,7 @@ class ActiveVisionFindEnv(BaseEnv):
         success_center_tol: float = 0.15,
         terminate_on_success: bool = False,
         target_image_size: int = 64,
+        occluders: int = 0,
         num_envs: int = 1,
         reconfiguration_freq: int | None = None,
         obs_mode: str | None = None,
@@ -129,6 +138,11 @@ class ActiveVisionFindEnv(BaseEnv):
                 )
         if not (isinstance(num_objects, (int, np.integer)) and 1 <= num_objects <= self.max_objects):
             raise ValueError(f"num_objects={num_objects!r} must be an integer from 1 to {self.max_objects}")
+        if not (isinstance(occluders, (int, np.integer)) and 0 <= occluders <= num_objects):
+            raise ValueError(
+                f"occluders={occluders!r} must be an integer from 0 to num_objects={num_objects} (one panel in "
+                "front of each of the first `occluders` objects)"
+            )
         if not 0 < step_size <= 0.1:
             raise ValueError(f"step_size={step_size!r} must be in (0, 0.1] m")
         if not 0 < success_fraction <= 1:
@@ -138,6 +152,7 @@ class ActiveVisionFindEnv(BaseEnv):
         if not (isinstance(target_image_size, (int, np.integer)) and 16 <= target_image_size <= 512):
             raise ValueError(f"target_image_size={target_image_size!r} must be an integer from 16 to 512")
         self.num_objects = int(num_objects)
+        self.occluders = int(occluders)
         self.object_set = object_set
         self.placement = placement
         self.start_pose = start_pose
@@ -147,6 +162,7 @@ class ActiveVisionFindEnv(BaseEnv):
         self.terminate_on_success = terminate_on_success
         self.target_image_size = int(target_image_size)
         self._hand_images = None
+        self._unoccluded_pixels = None
         self._clears = 0
         if reconfiguration_freq is None:
             reconfiguration_freq = 1 if num_envs == 1 else 0
@@ -224,6 +240,14 @@ class ActiveVisionFindEnv(BaseEnv):
         for obj in self.objects:
             self.add_to_state_dict_registry(obj)
         self.target = self.objects[0]
+        self.panels = [
+            Actor.merge(
+                [build_panel(self.scene, f"env{env}_panel{k}", [env]) for env in range(self.num_envs)], f"panel_{k}"
+            )
+            for k in range(self.occluders)
+        ]
+        for panel in self.panels:
+            self.add_to_state_dict_registry(panel)
         self.target_copy = Actor.merge(copies, name="target_copy")
         self.add_to_state_dict_registry(self.target_copy)
         self._object_bottoms = torch.tensor(bottoms, dtype=torch.float32, device=self.device)
@@ -238,37 +262,57 @@ class ActiveVisionFindEnv(BaseEnv):
         return self.target.per_scene_id
 
     # ------------------------------------------------------------------ episodes
-    def _sample_layout(self, env_idx) -> np.ndarray:
-        """(b, K, 3) = x, y, yaw of every object slot."""
-        layouts = []
+    def _sample_layout(self, env_idx) -> tuple[np.ndarray, np.ndarray]:
+        """(b, K, 3) = x, y, yaw of every object slot, and (b, occluders, 3) of every panel."""
+        layouts, panels = [], []
         for env in np.asarray(env_idx.cpu()):
             rng = self._batched_episode_rng[env]
             if self.placement == "fixed":
                 r, az = np.array(self.fixed_layout[: self.num_objects]).T
                 xy = np.stack([r * np.cos(np.radians(az)), r * np.sin(np.radians(az))], -1)
-                yaw = np.random.RandomState(self.fixed_scene_seed).uniform(0, 2 * np.pi, self.num_objects)
+                fixed_rng = np.random.RandomState(self.fixed_scene_seed)
+                yaw = fixed_rng.uniform(0, 2 * np.pi, self.num_objects)
                 layouts.append(np.concatenate([xy, yaw[:, None]], -1))
+                panels.append(place_panels(fixed_rng, xy, self.occluders, self._search_camera_rz()))
                 continue
-            placed = []
-            while len(placed) < self.num_objects:
-                for _ in range(1000):
-                    r = rng.uniform(*self.placement_radius)
-                    az = rng.uniform(-self.placement_azimuth, self.placement_azimuth)
-                    xy = np.array([r * np.cos(az), r * np.sin(az)])
-                    if all(np.linalg.norm(xy - p[:2]) >= self.min_object_distance for p in placed):
-                        break
-                placed.append(np.array([*xy, rng.uniform(0, 2 * np.pi)]))
-            layouts.append(np.stack(placed))
-        return np.stack(layouts)
+            while True:  # a new layout when the panels find no room (rare; never with occluders=0)
+                placed = self._place_objects(rng)
+                env_panels = place_panels(rng, placed[:, :2], self.occluders, self._search_camera_rz())
+                if env_panels is not None:
+                    break
+            layouts.append(placed)
+            panels.append(env_panels)
+        return np.stack(layouts), np.stack(panels)
+
+    def _place_objects(self, rng: np.random.RandomState) -> np.ndarray:
+        placed = []
+        while len(placed) < self.num_objects:
+            for _ in range(1000):
+                r = rng.uniform(*self.placement_radius)
+                az = rng.uniform(-self.placement_azimuth, self.placement_azimuth)
+                xy = np.array([r * np.cos(az), r * np.sin(az)])
+                if all(np.linalg.norm(xy - p[:2]) >= self.min_object_distance for p in placed):
+                    break
+            placed.append(np.array([*xy, rng.uniform(0, 2 * np.pi)]))
+        return np.stack(placed)
+
+    @staticmethod
+    def _search_camera_rz() -> tuple[float, float]:
+        """The camera's (radius, height) at the search pose: the panels hide objects from there."""
+        camera = camera_end(torch.tensor([SEARCH_POS], dtype=torch.float64), CAMERA_PITCH)[0, 2]
+        return float(torch.linalg.norm(camera[:2])), float(camera[2])
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
             b = len(env_idx)
-            layout = torch.as_tensor(self._sample_layout(env_idx), dtype=torch.float32)
+            layout, panels = (torch.as_tensor(a, dtype=torch.float32) for a in self._sample_layout(env_idx))
             yaw_q = lambda yaw: torch.stack([torch.cos(yaw / 2), 0 * yaw, 0 * yaw, torch.sin(yaw / 2)], -1)
             for k, obj in enumerate(self.objects):
                 p = torch.cat([layout[:, k, :2], self._object_bottoms[env_idx, k, None]], -1)
                 obj.set_pose(Pose.create_from_pq(p, yaw_q(layout[:, k, 2])))
+            for k, panel in enumerate(self.panels):
+                p = torch.cat([panels[:, k, :2], torch.zeros(b, 1)], -1)
+                panel.set_pose(Pose.create_from_pq(p, yaw_q(panels[:, k, 2])))
             studio = torch.tensor(self.studio_pos).expand(b, 3).clone()
             studio[:, 2] += self._object_bottoms[env_idx, 0]
             self.target_copy.set_pose(Pose.create_from_pq(studio, yaw_q(layout[:, 0, 2])))
@@ -293,13 +337,25 @@ class ActiveVisionFindEnv(BaseEnv):
 
     def reset(self, seed=None, options=None):
         self._hand_images = None
+        self._unoccluded_pixels = None
         if isinstance(seed, (int, np.integer)):
             gym.Env.reset(self, seed=int(seed))  # gymnasium's own seeding (env.np_random), which BaseEnv skips
         return super().reset(seed=seed, options=options)
 
+    def panel_layout(self) -> torch.Tensor:
+        """(N, occluders, 3) = x, y, yaw of every panel, from the actors' poses (so a restored state agrees)."""
+        if not self.panels:
+            return torch.zeros(self.num_envs, 0, 3, device=self.device)
+        poses = [panel.pose for panel in self.panels]
+        yaw = [2 * torch.atan2(pose.q[:, 3], pose.q[:, 0]) for pose in poses]
+        return torch.stack([torch.cat([pose.p[:, :2], y[:, None]], -1) for pose, y in zip(poses, yaw)], 1)
+
     def step(self, action):
         self._check_action(action)
         self._hand_images = None
+        self._unoccluded_pixels = None
+        if self.panels:  # the controller keeps the camera end of the arm out of the panels
+            self.agent.controller.panels = self.panel_layout()
         obs, reward, terminated, truncated, info = super().step(action)
         if not self.terminate_on_success:
             terminated = torch.zeros_like(terminated)
@@ -321,6 +377,7 @@ class ActiveVisionFindEnv(BaseEnv):
 
     def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
         self._hand_images = None
+        self._unoccluded_pixels = None
         super().set_state_dict(state, env_idx)
 
     # ------------------------------------------------------------------ sensing
@@ -366,12 +423,55 @@ class ActiveVisionFindEnv(BaseEnv):
             self._target_image_stale[:] = False
         return self._target_image
 
+    def _target_pixels_without_panels(self) -> torch.Tensor:
+        """Target pixels (N,) in the wrist view with the panels hidden: one more render, made only on steps
+        where the target borders a panel (docs/task.md#occluders measures the cost)."""
+        if self._unoccluded_pixels is None:
+            bodies = [
+                component
+                for panel in self.panels
+                for entity in panel._objs
+                for component in entity.components
+                if isinstance(component, sapien.render.RenderBodyComponent) and component.visibility > 0
+            ]
+            for body in bodies:
+                body.visibility = 0
+            try:
+                segmentation = self._capture("hand_camera", rgb=False)["segmentation"][..., 0]
+            finally:
+                for body in bodies:
+                    body.visibility = 1
+            self._unoccluded_pixels = (segmentation == self.target_seg_id.to(segmentation.device)[:, None, None]).sum(
+                (1, 2)
+            )
+        return self._unoccluded_pixels
+
+    def _visible_fraction(self, segmentation: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """The share (N,) of the target's pixels in this view that no panel hides (0 when none is seen). A
+        panel hides part of the target only where its pixels border the target's, so only then is the view
+        rendered again without the panels to count what they hide."""
+        pixels = target.sum((1, 2))
+        fraction = (pixels > 0).float()
+        if not self.panels:
+            return fraction
+        panel_ids = torch.stack([panel.per_scene_id for panel in self.panels], -1).to(segmentation.device)
+        panel = (segmentation[..., None] == panel_ids[:, None, None, :]).any(-1)
+        near_panel = torch.nn.functional.max_pool2d(panel[:, None].float(), 3, 1, 1)[:, 0] > 0
+        borders = (near_panel & target).any(2).any(1)
+        if borders.any():
+            unoccluded = self._target_pixels_without_panels()
+            fraction = torch.where(borders, pixels / unoccluded.clamp(min=1), fraction)
+        return fraction
+
     def evaluate(self) -> dict:
         segmentation = self._hand_camera_images()["segmentation"][..., 0]
-        stats = target_stats(segmentation == self.target_seg_id.to(segmentation.device)[:, None, None])
+        target = segmentation == self.target_seg_id.to(segmentation.device)[:, None, None]
+        stats = target_stats(target)
+        visible_fraction = self._visible_fraction(segmentation, target)
         success = (
             stats["target_visible"]
             & ~stats["touches_border"]
+            & (visible_fraction >= self.min_visible_fraction)
             & (stats["center_offset"] <= self.success_center_tol)
             & (stats["target_fraction"] >= self.success_fraction)
         )
@@ -380,6 +480,7 @@ class ActiveVisionFindEnv(BaseEnv):
             success=success,
             target_fraction=stats["target_fraction"],
             target_visible=stats["target_visible"],
+            target_visible_fraction=visible_fraction,
             target_bbox=stats["target_bbox"],
             target_center_offset=stats["center_offset"],
             refused=controller.refused.clone(),

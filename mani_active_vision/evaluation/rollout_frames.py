@@ -59,6 +59,8 @@ class RolloutFramesConfig:
     """which of SOURCES to run"""
     fcn_weights: str = ""
     """the FCN checkpoint of the sources on its box ("": the shipped agents/weights/fcn.pt)"""
+    occluders: int = 0
+    """the task's panels per scene (partly occluded targets)"""
 
     def __post_init__(self):
         unknown = [s for s in self.sources if s not in SOURCES]
@@ -98,9 +100,14 @@ def object_map(base, segmentation: np.ndarray) -> np.ndarray:
 
 def record_episode(env, policy, seed: int, stride: int, source: int) -> dict[str, np.ndarray]:
     """Run one episode and keep every `stride`-th frame (see the module docstring)."""
-    base, frames = env.unwrapped, []
-    run_episode(env, policy, seed, on_step=lambda obs, info: frames.append(env.last_observation))
-    frames = frames[::stride]
+    base, frames, visible = env.unwrapped, [], []
+
+    def keep(obs, info):
+        frames.append(env.last_observation)
+        visible.append(float(info["target_visible_fraction"][0]))
+
+    run_episode(env, policy, seed, on_step=keep)
+    frames, visible = frames[::stride], visible[::stride]
     relations = np.full(base.max_objects, -1, np.int8)
     relations[: base.num_objects] = slot_relations(base.object_names[0], base.object_colors[0])
     target_id = int(base.target_seg_id[0])
@@ -122,6 +129,7 @@ def record_episode(env, policy, seed: int, stride: int, source: int) -> dict[str
         source=np.full(n, source, np.int8),
         scene_seed=np.full(n, seed, np.int64),
         step=np.arange(n, dtype=np.int16) * stride,
+        visible_fraction=np.array(visible, np.float32),
     )
 
 
@@ -138,6 +146,7 @@ def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: 
             image_size=config.image_size,
             box_source=box_source,
             fcn_weights=config.fcn_weights if box_source == "fcn" else "",
+            occluders=config.occluders,
         )
         env = make_env(env_config)
         try:

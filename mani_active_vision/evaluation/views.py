@@ -12,6 +12,7 @@ import torch
 
 from mani_active_vision.boxes import target_stats
 from mani_active_vision.directions import DIRECTIONS, direction_deltas
+from mani_active_vision.occluders import MIN_VISIBLE_FRACTION
 from mani_active_vision.robots.iiwa import SEARCH_POS
 from mani_active_vision.robots.orbit_controller import step_allowed
 
@@ -43,17 +44,20 @@ def view_stats(base, qpos: torch.Tensor) -> dict[str, np.ndarray]:
     rows = []
     for q in qpos:
         base.agent.robot.set_qpos(q[None])
-        base._hand_images = None
+        base._hand_images = base._unoccluded_pixels = None
         seg = base._hand_camera_images()["segmentation"][..., 0]
-        rows.append(target_stats(seg == base.target_seg_id[:, None, None]))
-    keys = ("target_fraction", "target_visible", "touches_border", "center_offset")
+        target = seg == base.target_seg_id[:, None, None]
+        rows.append({**target_stats(target), "target_visible_fraction": base._visible_fraction(seg, target)})
+    keys = ("target_fraction", "target_visible", "target_visible_fraction", "touches_border", "center_offset")
     return {k: np.array([float(r[k][0]) for r in rows]) for k in keys}
 
 
 def meets(stats: dict, fraction, tolerance) -> np.ndarray:
-    """Which views meet the success criterion (fully in view, share >= `fraction`, centroid within
-    `tolerance` of the width from the centre); `fraction` and `tolerance` may be broadcast arrays."""
+    """Which views meet the success criterion (fully in view and not hidden by an occluder, share >=
+    `fraction`, centroid within `tolerance` of the width from the centre); `fraction` and `tolerance` may
+    be broadcast arrays."""
     inside = (stats["target_visible"] > 0) & (stats["touches_border"] == 0)
+    inside &= stats["target_visible_fraction"] >= MIN_VISIBLE_FRACTION
     return inside & (stats["target_fraction"] >= fraction) & (stats["center_offset"] <= tolerance)
 
 

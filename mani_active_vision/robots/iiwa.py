@@ -13,7 +13,7 @@ from mani_skill.agents.base_agent import BaseAgent, Keyframe
 from mani_skill.agents.registration import register_agent
 from mani_skill.sensors.camera import CameraConfig
 
-from .orbit_controller import OrbitEEPosControllerConfig, solve_ik
+from .orbit_controller import CAMERA_OFFSET, OrbitEEPosControllerConfig, solve_ik
 
 ARM_JOINTS = [f"lbr_iiwa_joint_{i}" for i in range(1, 8)]
 EE_LINK = "lbr_iiwa_link_7"
@@ -75,7 +75,7 @@ class IiwaWristCam(BaseAgent):
         return [
             CameraConfig(
                 uid="hand_camera",
-                pose=sapien.Pose(p=[0, 0, 0.06], q=[math.sqrt(0.5), 0, -math.sqrt(0.5), 0]),
+                pose=sapien.Pose(p=[0, 0, CAMERA_OFFSET], q=[math.sqrt(0.5), 0, -math.sqrt(0.5), 0]),
                 width=128,
                 height=128,
                 fov=math.radians(70),

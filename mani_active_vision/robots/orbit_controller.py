@@ -22,11 +22,14 @@ import torch
 from gymnasium import spaces
 from mani_skill.agents.controllers.pd_joint_pos import PDJointPosController, PDJointPosControllerConfig
 
+from mani_active_vision.occluders import points_inside
+
 # Kinematics of pybullet_data/kuka_iiwa/model.urdf (iiwa 14), read off its joint origins.
 SHOULDER_HEIGHT = 0.36  # joint 2 above the base (0.1575 + 0.2025)
 UPPER_ARM = 0.42  # joint 2 -> joint 4 (0.2045 + 0.2155)
 FOREARM = 0.40  # joint 4 -> joint 6 (0.1845 + 0.2155)
 WRIST_TO_EE = 0.081  # joint 6 -> link 7 origin (the end effector)
+CAMERA_OFFSET = 0.06  # link 7 origin -> the wrist camera, along link 7's axis
 JOINT_LIMITS = np.array(
     [2.96705972839, 2.09439510239, 2.96705972839, 2.09439510239, 2.96705972839, 2.09439510239, 3.05432619099]
 )
@@ -73,11 +76,36 @@ def forward_position(qpos: torch.Tensor) -> torch.Tensor:
     return torch.stack([radius * torch.cos(q1), radius * torch.sin(q1), z], -1)
 
 
-def step_allowed(new_pos: torch.Tensor, target_qpos: torch.Tensor, config) -> tuple[torch.Tensor, torch.Tensor]:
+def camera_end(ee_pos: torch.Tensor, pitch: float) -> torch.Tensor:
+    """Joint 6, link 7 and the camera (N, 3, 3) for link 7 at `ee_pos` (N, 3) on the orbit rule."""
+    forward = camera_forward(torch.atan2(ee_pos[:, 1], ee_pos[:, 0]), pitch)
+    return torch.stack([ee_pos - WRIST_TO_EE * forward, ee_pos, ee_pos + CAMERA_OFFSET * forward], 1)
+
+
+def arm_points(qpos: torch.Tensor, per_link: int = 8) -> torch.Tensor:
+    """Points (N, 3 * per_link, 3) along the arm's centre line, shoulder -> elbow -> joint 6 -> link 7, for
+    joint positions in the orbit family (for measuring where the whole arm goes, e.g. through a panel)."""
+    q1, q2, q4, q6 = qpos[:, 0], qpos[:, 1], qpos[:, 3], qpos[:, 5]
+    angles = torch.stack([q2, q2 - q4, q2 - q4 + q6], 1)  # each link's angle from vertical, in the arm's plane
+    lengths = torch.tensor([UPPER_ARM, FOREARM, WRIST_TO_EE], dtype=qpos.dtype, device=qpos.device)
+    steps = torch.stack([torch.sin(angles), torch.cos(angles)], -1) * lengths[:, None]  # (N, 3, 2): (r, z)
+    joints = torch.cumsum(torch.cat([torch.tensor([0.0, SHOULDER_HEIGHT]).expand(len(qpos), 1, 2), steps], 1), 1)
+    t = torch.linspace(0, 1, per_link, dtype=qpos.dtype, device=qpos.device)[None, None, :, None]
+    rz = (joints[:, :-1, None] + t * (joints[:, 1:, None] - joints[:, :-1, None])).reshape(len(qpos), -1, 2)
+    return torch.stack([rz[..., 0] * torch.cos(q1)[:, None], rz[..., 0] * torch.sin(q1)[:, None], rz[..., 1]], -1)
+
+
+def step_allowed(
+    new_pos: torch.Tensor, target_qpos: torch.Tensor, config, panels: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The joint positions (N, 7) for commanded positions `new_pos` (N, 3), and whether a step there from
     joint targets `target_qpos` (N, 7) is accepted (else refused: docs/design.md §5). `config`: an
-    `OrbitEEPosControllerConfig`. Privileged planners ask it too, so that they judge steps as the arm does."""
+    `OrbitEEPosControllerConfig`; `panels` (N, K, 3): the task's occluders, which the camera end of the arm
+    must keep clear of (`mani_active_vision.occluders`). Privileged planners ask it too, so that they judge
+    steps as the arm does."""
     new_q, ok = solve_ik(new_pos, config.pitch)
+    if panels is not None and panels.shape[1]:
+        ok &= ~points_inside(camera_end(new_pos, config.pitch), panels).any(-1)
     x, y, z = new_pos.unbind(-1)
     radius = torch.sqrt(x * x + y * y)
     ok &= (z >= config.min_height) & (z <= config.max_height)
@@ -129,7 +157,7 @@ class OrbitEEPosController(PDJointPosController):
     def set_action(self, action):
         action = self._preprocess_action(action).clamp(-self.config.max_step, self.config.max_step)
         new_pos = self.target_pos + action
-        new_q, ok = step_allowed(new_pos, self._target_qpos, self.config)
+        new_q, ok = step_allowed(new_pos, self._target_qpos, self.config, getattr(self, "panels", None))
         self.refused = ~ok
         self.refused_count += self.refused.to(torch.int32)
         self.target_pos = torch.where(ok[:, None], new_pos, self.target_pos)

@@ -1,0 +1,166 @@
+"""How often the task's occluders hide the target from the search pose, and what the visibility rule costs.
+
+For each scene (episode seeds from 1,000,000: held out), the camera is put at the search pose looking
+straight at the target's azimuth (joint positions set, privileged) and the target's pixels are counted with
+and without the panels: wholly hidden, partly hidden (visible fraction below the success threshold), in
+view, or out of view even without panels. Then the scripted servo (ground-truth box) steps an env with and
+without occluders in alternating blocks: milliseconds per step and the share of steps that render the
+view a second time (the target borders a panel). The load is printed with the timings.
+
+    .venv/bin/python baselines/occlusion.py --scenes 100 --occluders 2
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+import torch
+import tyro
+from tqdm import tqdm
+
+import mani_active_vision  # noqa: F401
+from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import EVAL_SEED
+from mani_active_vision.occluders import MIN_VISIBLE_FRACTION
+from mani_active_vision.robots.iiwa import SEARCH_POS
+from mani_active_vision.robots.orbit_controller import solve_ik
+
+
+@dataclass
+class Args:
+    scenes: int = 100
+    """scenes (episode seeds from 1,000,000)"""
+    occluders: int = 2
+    object_set: str = "unseen"
+    image_size: int = 64
+    timing_steps: int = 300
+    """servo steps per env for the cost of the visibility rule (0: skip)"""
+
+
+def search_view(base) -> tuple[int, int]:
+    """(visible, unoccluded) target pixels with the camera at the search pose aimed at the target."""
+    x, y = base.target.pose.p[0, :2].tolist()
+    azimuth = math.atan2(y, x)
+    pos = torch.tensor([[SEARCH_POS[0] * math.cos(azimuth), SEARCH_POS[0] * math.sin(azimuth), SEARCH_POS[2]]])
+    qpos, _ = solve_ik(pos, base.agent.controller.config.pitch)
+    base.agent.robot.set_qpos(qpos)
+    base._hand_images = base._unoccluded_pixels = None
+    segmentation = base._hand_camera_images()["segmentation"][..., 0]
+    visible = int((segmentation == base.target_seg_id[:, None, None]).sum())
+    unoccluded = int(base._target_pixels_without_panels()[0]) if base.panels else visible
+    return visible, unoccluded
+
+
+def step_costs(configs: dict[str, EnvConfig], steps: int, block: int = 50) -> dict[str, dict]:
+    """ms per env step of the servo in each env, stepped in alternating blocks, and the share of steps that
+    rendered the view twice."""
+    envs = {name: make_env(c.replace(box_source="ground_truth")) for name, c in configs.items()}
+    policies = {name: make_policy("servo", env) for name, env in envs.items()}
+    times = {name: [] for name in envs}
+    second = {name: 0 for name in envs}
+    last = {}
+    for name, env in envs.items():
+        last[name] = env.reset(seed=EVAL_SEED)
+        policies[name].reset(*last[name])
+    for _ in tqdm(range(steps // block), desc="timing"):
+        for name, env in envs.items():
+            for _step in range(block):
+                action = policies[name].act(*last[name])
+                start = time.perf_counter()
+                obs, _, _, truncated, info = env.step(action)
+                times[name].append(time.perf_counter() - start)
+                second[name] += env.unwrapped._unoccluded_pixels is not None
+                last[name] = (obs, info)
+                if bool(truncated):
+                    last[name] = env.reset(seed=EVAL_SEED + len(times[name]))
+                    policies[name].reset(*last[name])
+    for env in envs.values():
+        env.close()
+    return {
+        name: {
+            "ms_median": 1000 * float(np.median(t)),
+            "ms_mean": 1000 * float(np.mean(t)),
+            "second_render_share": second[name] / len(t),
+        }
+        for name, t in times.items()
+    }
+
+
+def rule_costs(base, repeats: int = 200) -> dict[str, float]:
+    """ms per call of the visibility rule's parts in the current view: the check that runs every step (the
+    panels' layout for the controller, whether the target borders a panel) and the second render."""
+
+    def per_call(f) -> float:
+        start = time.perf_counter()
+        for _ in range(repeats):
+            f()
+        return 1000 * (time.perf_counter() - start) / repeats
+
+    segmentation = base._hand_camera_images()["segmentation"][..., 0]
+    target = segmentation == base.target_seg_id[:, None, None]
+
+    def second_render():
+        base._unoccluded_pixels = None
+        base._target_pixels_without_panels()
+
+    return {
+        "check every step": per_call(lambda: (base.panel_layout(), base._visible_fraction(segmentation, target))),
+        "second render": per_call(second_render),
+    }
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    config = EnvConfig(
+        start_pose="search", object_set=args.object_set, image_size=args.image_size, occluders=args.occluders
+    )
+    env = gym.make(ENV_ID, **config.task_kwargs())
+    base = env.unwrapped
+    counts = dict(wholly_hidden=0, partly_hidden=0, in_view=0, out_of_view=0)
+    for seed in tqdm(range(EVAL_SEED, EVAL_SEED + args.scenes), desc="scenes"):
+        env.reset(seed=seed)
+        visible, unoccluded = search_view(base)
+        if unoccluded == 0:
+            counts["out_of_view"] += 1
+        elif visible == 0:
+            counts["wholly_hidden"] += 1
+        elif visible / unoccluded < MIN_VISIBLE_FRACTION:
+            counts["partly_hidden"] += 1
+        else:
+            counts["in_view"] += 1
+    costs = rule_costs(base)
+    env.close()
+    print(
+        f"\nThe target from the search pose aimed at it ({args.scenes} scenes, {args.object_set} objects, "
+        f"{args.occluders} occluders, {args.image_size}²):\n"
+    )
+    print("| wholly hidden | partly hidden | in view | out of view without panels |")
+    print("|---|---|---|---|")
+    print("| " + " | ".join(f"{counts[k] / args.scenes:.2f}" for k in counts) + " |")
+    load = os.getloadavg()[0]
+    print(
+        f"\nThe visibility rule per call (load {load:.1f}): " + ", ".join(f"{k} {v:.2f} ms" for k, v in costs.items())
+    )
+    if args.timing_steps:
+        load = os.getloadavg()[0]
+        costs = step_costs(
+            {"occluders=0": config.replace(occluders=0), f"occluders={args.occluders}": config}, args.timing_steps
+        )
+        print(
+            f"\nRandom directions, {args.timing_steps} steps each, alternating blocks (load {load:.1f} -> "
+            f"{os.getloadavg()[0]:.1f}):\n"
+        )
+        print("| env | ms per step (median) | (mean) | steps rendered twice |")
+        print("|---|---|---|---|")
+        for name, c in costs.items():
+            print(f"| {name} | {c['ms_median']:.2f} | {c['ms_mean']:.2f} | {c['second_render_share']:.2f} |")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
