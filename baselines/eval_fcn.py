@@ -10,7 +10,7 @@ target covers at least 1% of the image (the sizes control works with; tiny far-a
 pixels are where per-sample IoU is lowest); IoU (≥20 px): over samples with at least 20 target pixels. A
 second table splits the target IoU by the target's share of the image. Rollout-frame sets
 (`baselines/collect_rollout_frames.py`) also get a table of what the false positives on target-absent
-frames lie on (an identical twin, a same-shape or same-colour distractor, another object, floor, robot)
+frames lie on (an identical twin, a same-shape or same-colour distractor, another object, floor, a panel, robot)
 and the same metrics per source policy, and, for scenes with occluders, the target IoU on frames where a
 panel hides part of the target beside those where none does.
 """

@@ -234,3 +234,16 @@ def test_screenshots_at_chosen_steps(tmp_path):
     assert image.std() > 10  # views were drawn, not a blank window
     with pytest.raises(ValueError, match="outside the recording's steps 0..4"):
         screenshots(str(path), [99], str(tmp_path / "png"))
+
+
+def test_occluders_are_logged_as_boxes_in_the_3d_view(tmp_path):
+    path = tmp_path / "occluded.rrd"
+    with RerunRecorder(make_env(EnvConfig(start_pose="search", box_source="none", occluders=2)), str(path)) as env:
+        env.reset(seed=0)
+        env.step(0)
+    verify(path)
+    rows = temporal_rows(path)
+    assert rows["world/env0/occluders"] == 1 and "world/env1/occluders" not in rows
+    centers = column_by_step(path, "world/env0/occluders", "Boxes3D:centers")
+    assert len(next(iter(centers.values()))) == 2
+    assert "world/env0/objects" in rows

@@ -445,6 +445,7 @@ def test_box_state_from_fcn_and_its_last_mask():
 def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives(tmp_path):
     from mani_active_vision.evaluation.rollout_frames import (
         FLOOR,
+        OCCLUDER,
         RELATIONS,
         ROBOT,
         RolloutFramesConfig,
@@ -474,6 +475,7 @@ def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives
     objects = np.full((3, 4, 4), FLOOR, np.uint8)
     objects[:, :2, :2] = 3  # slot 2 is in view
     objects[:, 3, :] = ROBOT
+    objects[:, 2, 2:] = OCCLUDER
     fake = {
         "mask": np.zeros((3, 4, 4), bool),
         "objects": objects,
@@ -482,11 +484,13 @@ def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives
     pred = np.zeros((3, 4, 4), bool)
     pred[0, :2, :2] = True  # on the same-colour distractor
     pred[1, 3, :] = True  # on the robot
+    pred[2, 2, 2:] = True  # on a panel
     assert attribute_false_positives(pred, fake) == {
         "identical twin": 0,
         "same shape": 0,
         "same colour": 1,
         "other object": 0,
         "floor": 0,
+        "occluder": 1,
         "robot": 1,
     }

@@ -6,7 +6,7 @@ empty views, close-ups, look-alikes in view without the target). Each source run
 - `scene` (H, W, 3) uint8, `target` (h, w, 3) uint8 and `mask` (H, W) bool, as in `segmentation_data`, so
   that `baselines/eval_fcn.py` evaluates these sets like the others;
 - `objects` (H, W) uint8: what each pixel shows: `FLOOR` (0), object slot k as k + 1 (slot 0 the target),
-  `ROBOT`; and `relations` (max objects,) int8: each slot's relation to the target (`RELATIONS`), so that a
+  `OCCLUDER` (a panel of the task's `occluders`), `ROBOT`; and `relations` (max objects,) int8: each slot's relation to the target (`RELATIONS`), so that a
   false positive can be attributed to an identical twin, a same-shape or same-colour distractor, another
   object, or the floor and the robot;
 - `source`, `scene_seed`, `step`.
@@ -40,7 +40,7 @@ to it, and random directions from both start poses, on the ground-truth box; and
 FCN's box, which approaches whatever the FCN marks (hard negatives mined by the model: close-ups of the
 look-alikes it mistakes for the target). The test set uses the first four."""
 RELATIONS = ("target", "identical twin", "same shape", "same colour", "other object")
-FLOOR, ROBOT = 0, 255
+FLOOR, OCCLUDER, ROBOT = 0, 254, 255
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def slot_relations(names: list[str], colors: list[tuple]) -> np.ndarray:
 
 
 def object_map(base, segmentation: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 of what each pixel of env 0's segmentation shows: FLOOR, slot k + 1, or ROBOT."""
+    """(H, W) uint8 of what each pixel of env 0's segmentation shows: FLOOR, slot k + 1, OCCLUDER or ROBOT."""
     lookup = np.zeros(int(segmentation.max()) + 1, np.uint8)
     for seg_id, thing in base.segmentation_id_map.items():
         if type(thing).__name__ == "Link" and seg_id < len(lookup):
@@ -95,6 +95,10 @@ def object_map(base, segmentation: np.ndarray) -> np.ndarray:
         seg_id = int(obj.per_scene_id[0])
         if seg_id < len(lookup):
             lookup[seg_id] = k + 1
+    for panel in base.panels:
+        seg_id = int(panel.per_scene_id[0])
+        if seg_id < len(lookup):
+            lookup[seg_id] = OCCLUDER
     return lookup[segmentation]
 
 
@@ -181,8 +185,8 @@ def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: 
 
 def attribute_false_positives(pred: np.ndarray, data: dict) -> dict[str, int]:
     """On frames without the target where a mask `pred` (N, H, W) bool marks something: what the marked pixels
-    mostly show (a distractor's relation to the target, "floor" or "robot"); counts per kind."""
-    kinds = [*RELATIONS[1:], "floor", "robot"]
+    mostly show (a distractor's relation to the target, "floor", "occluder" or "robot"); counts per kind."""
+    kinds = [*RELATIONS[1:], "floor", "occluder", "robot"]
     counts = dict.fromkeys(kinds, 0)
     absent = ~data["mask"].any((1, 2))
     for i in np.flatnonzero(absent & pred.any((1, 2))):
@@ -192,6 +196,8 @@ def attribute_false_positives(pred: np.ndarray, data: dict) -> dict[str, int]:
             counts["floor"] += 1
         elif value == ROBOT:
             counts["robot"] += 1
+        elif value == OCCLUDER:
+            counts["occluder"] += 1
         else:
             counts[RELATIONS[int(data["relations"][i][value - 1])]] += 1
     return counts

@@ -22,6 +22,7 @@ ROBOT_COLOR = (150, 150, 150)
 GROUND_COLOR = (0, 0, 0, 0)  # transparent: the overlay highlights objects and the robot, not the floor
 MASK_COLOR = (255, 220, 0)
 PATH_COLOR = (255, 160, 0)
+OCCLUDER_COLOR = (158, 140, 120)
 
 
 def camera(i: int) -> str:
@@ -58,6 +59,23 @@ def log_episode_start(
     if target_image is not None:
         stream.log(f"env{i}/target_image", rr.Image(target_image))
     stream.log(f"env{i}/outcome", rr.TextLog(f"episode {episode} starts", level="INFO"))
+
+
+def log_occluders(stream, i: int, panels: np.ndarray, size: tuple[float, float, float]):
+    """The task's occluders of env i as boxes in the 3D view: panels (P, 3) = x, y, yaw; `size` =
+    thickness, width, height."""
+    thickness, width, height = size
+    stream.log(
+        f"world/env{i}/occluders",
+        rr.Boxes3D(
+            centers=[(x, y, height / 2) for x, y, _ in panels],
+            half_sizes=[(thickness / 2, width / 2, height / 2)] * len(panels),
+            rotation_axis_angles=[rr.RotationAxisAngle(axis=(0, 0, 1), radians=float(yaw)) for *_, yaw in panels],
+            colors=[OCCLUDER_COLOR] * len(panels),
+            labels=[f"occluder {k}" for k in range(len(panels))],
+            fill_mode="solid",
+        ),
+    )
 
 
 def log_camera_frame(

@@ -26,6 +26,7 @@ import torch
 
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.boxes import mask_to_box
+from mani_active_vision.occluders import PANEL_SIZE
 from mani_active_vision.recording import log
 from mani_active_vision.recording.blueprint import blueprint
 
@@ -259,6 +260,10 @@ class RerunRecorder(_Timed, gym.Wrapper):
         self.recording.step += 1
         raw = self._observation(obs)
         self.recording.start_episodes(raw, range(self.recording.num_envs), self._scene)
+        base = self.env.unwrapped
+        if getattr(base, "panels", None):
+            for i in range(self.recording.num_envs):
+                log.log_occluders(self.recording.stream, i, _numpy(base.panel_layout()[i]), PANEL_SIZE)
         self._frame(raw, info)
         self.reset_log_seconds += time.perf_counter() - start
         return obs, info
@@ -385,6 +390,8 @@ def scene_classes(base, i: int):
     ]
     for obj, label, color in zip(objects, labels, colors):
         classes.append((int(obj.per_scene_id[i]), label, color))
+    for k, panel in enumerate(getattr(base, "panels", [])):
+        classes.append((int(panel.per_scene_id[i]), f"occluder {k}", log.OCCLUDER_COLOR))
     positions = np.stack([_numpy(obj.pose.p[i]) for obj in objects])
     return classes, positions, labels, colors
 
