@@ -69,34 +69,20 @@ class RandomPolicy:
         return self.rng.integers(0, self.num_actions, size=self.num_envs)
 
 
-LOOK_OVER = (UP,) * 3 + (FORWARD,) * 8
-"""a sweep's lead-in that looks over the task's occluders: to the workspace's top, then 8 steps forward (the
-camera at radius ~0.5 m, height ~0.7 m, looking steeply down past 50 cm panels: docs/task.md#occluders)"""
-
-
 class Sweep:
-    """Orbit one way around the robot's axis; turn back when a step is refused (at joint 1's limit). With a
-    `lead_in` (directions), take those first: e.g. LOOK_OVER, to sweep from where occluders hide less."""
+    """Orbit one way around the robot's axis; turn back when a step is refused (at joint 1's limit)."""
 
-    def __init__(self, num_envs: int, first: int = LEFT, lead_in: tuple[int, ...] = ()):
+    def __init__(self, num_envs: int, first: int = LEFT):
         self.first = first
-        self.lead_in = np.asarray(lead_in, dtype=np.int64)
         self.direction = np.full(num_envs, first)
-        self.steps = np.zeros(num_envs, dtype=np.int64)
 
     def reset(self):
         self.direction[:] = self.first
-        self.steps[:] = 0
 
     def act(self, info) -> np.ndarray:
-        # a refusal turns the orbit only when the refused step was an orbit step (not the lead-in's)
-        refused = info_flags(info, "refused", len(self.direction)) & (self.steps > len(self.lead_in))
+        refused = info_flags(info, "refused", len(self.direction))
         self.direction[refused] = np.where(self.direction[refused] == LEFT, RIGHT, LEFT)
-        action = self.direction.copy()
-        leading = self.steps < len(self.lead_in)
-        action[leading] = self.lead_in[self.steps[leading]]
-        self.steps += 1
-        return action
+        return self.direction.copy()
 
 
 class ServoPolicy:
@@ -104,15 +90,12 @@ class ServoPolicy:
     `center_tol`, then step forward (zoom in). The sweep reverses on a refused step.
 
     With `hold` it takes `stay` (the env needs `stay_action`) while the task reports success: privileged
-    (`info["success"]` is the ground truth), a teacher for the DQN's demonstrations that shows holding.
-    With `look_over` the sweep starts with LOOK_OVER (for scenes with occluders)."""
+    (`info["success"]` is the ground truth), a teacher for the DQN's demonstrations that shows holding."""
 
-    def __init__(
-        self, env, center_tol: float = 0.1, first_sweep: str = "left", hold: bool = False, look_over: bool = False
-    ):
+    def __init__(self, env, center_tol: float = 0.1, first_sweep: str = "left", hold: bool = False):
         self.num_envs = env.unwrapped.num_envs
         self.center_tol = center_tol
-        self.sweep = Sweep(self.num_envs, DIRECTIONS.index(first_sweep), LOOK_OVER if look_over else ())
+        self.sweep = Sweep(self.num_envs, DIRECTIONS.index(first_sweep))
         if hold and num_actions(env) == len(DIRECTIONS):
             raise ValueError("ServoPolicy(hold=True) takes `stay`: make the env with stay_action")
         self.hold = hold
@@ -141,12 +124,12 @@ class ExplorePolicy:
     seen; from then on, for the rest of the episode, the policy `then` acts (none: keep orbiting).
 
     `handed_over` (N,) bool says which envs the explorer has handed over this episode: a learner uses it
-    to tell its own steps from the script's. With `look_over` the orbit starts with LOOK_OVER (occluders).
+    to tell its own steps from the script's.
     """
 
-    def __init__(self, env, then=None, seed: int = 0, look_over: bool = False, **then_kwargs):
+    def __init__(self, env, then=None, seed: int = 0, **then_kwargs):
         self.num_envs = env.unwrapped.num_envs
-        self.sweep = Sweep(self.num_envs, lead_in=LOOK_OVER if look_over else ())
+        self.sweep = Sweep(self.num_envs)
         if isinstance(then, str) and then != "none":  # a name in POLICIES, else a policy object (or None)
             then = make_policy(then, env, **({"seed": seed} if then in ("random", "dqn") else {}), **then_kwargs)
         self.then = None if then == "none" else then
@@ -239,11 +222,8 @@ POLICIES: dict[str, Callable] = {
 }
 
 
-def policy_kwargs(
-    name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0, look_over: bool = False
-) -> dict:
-    """The keyword arguments `make_policy` needs for `name` (and, for "explore", the policy it hands over to).
-    `look_over`: the servo's or the exploration's sweep starts with LOOK_OVER."""
+def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0) -> dict:
+    """The keyword arguments `make_policy` needs for `name` (and, for "explore", the policy it hands over to)."""
     uses_dqn = name == "dqn" or (name == "explore" and then == "dqn")
     if uses_dqn and not checkpoint:
         raise ValueError(f"policy {name!r} (then {then!r}) needs a DQN checkpoint")
@@ -252,10 +232,6 @@ def policy_kwargs(
         kwargs["then"] = then
     if name in ("random", "explore", "dqn"):
         kwargs["seed"] = seed
-    if look_over:
-        if name not in ("servo", "explore"):
-            raise ValueError(f"look_over is a sweep's lead-in: policy {name!r} does not sweep (servo and explore do)")
-        kwargs["look_over"] = True
     return kwargs
 
 

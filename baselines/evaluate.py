@@ -5,7 +5,6 @@ success, SPL, final target fraction, return (`mani_active_vision.metrics`).
     python baselines/evaluate.py --policy servo --episodes 20
     python baselines/evaluate.py --policy explore --then dqn --checkpoint runs/dqn/random_explore_seed0/q_network.pt
     python baselines/evaluate.py --policy explore --then dqn --checkpoint ... --env.box-source fcn --env.object-set unseen
-    python baselines/evaluate.py --policy servo --look-over --env.occluders 2   # scenes with occluders
 
 Episode seeds are `seed, seed+1, ...` (default from 1,000,000: never a training scene). With a DQN
 checkpoint the env is the one it was trained in; each `--env.*` flag given overrides that option.
@@ -39,8 +38,6 @@ class Args:
     checkpoint: str = ""
     """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn"""
     epsilon: float = 0.0
-    look_over: bool = False
-    """for --policy servo or explore: the sweep first looks over the occluders (policies.LOOK_OVER)"""
     """for a DQN: the share of random actions (ε-greedy; 0 = greedy)"""
     episodes: int = 20
     """evaluation episodes"""
@@ -54,7 +51,7 @@ class Args:
 
 def main(args: Args) -> dict:
     torch.set_num_threads(1)
-    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, args.epsilon, args.look_over)
+    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, args.epsilon)
     env = make_env(args.env)
     try:
         policy = make_policy(args.policy, env, **kwargs)

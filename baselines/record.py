@@ -37,8 +37,6 @@ class Args:
     """the .rrd file to write (its folder is created)"""
     then: str = "none"
     """for --policy explore: the policy that takes over once the target is seen (servo, dqn, random, none)"""
-    look_over: bool = False
-    """for --policy servo or explore: the sweep first looks over the occluders (policies.LOOK_OVER)"""
     checkpoint: str = ""
     """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn"""
     image_format: str = "jpeg"
@@ -51,7 +49,7 @@ def main(args: Args):
     torch.set_num_threads(1)
     if args.policy not in POLICIES:  # before any file is written
         raise ValueError(f"policy={args.policy!r} is not one of: {', '.join(POLICIES)}")
-    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, look_over=args.look_over)
+    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed)
     with RerunRecorder(
         make_env(args.env), args.out, image_format=args.image_format, jpeg_quality=args.jpeg_quality
     ) as env:
