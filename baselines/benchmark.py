@@ -135,6 +135,10 @@ def subjects(args: Args) -> dict:
         lambda: Single(mav.DiscreteDirections(gym.make(ENV_ID, **{**ours(128).task_kwargs(), "obs_mode": "state"}))),
         "PyBullet reference, 128²",
     )
+    table["ours, 1 env, render-free box state (the target's hull projected)"] = (
+        lambda: Single(make_env(ours(128, box_source="projection"))),
+        "PyBullet reference, 128²",
+    )
     table["agent loop: 1 env, 128² + FCN box + Q-network"] = (
         lambda: Single(make_env(ours(128, box_source="fcn")), policy=QNetwork(4)),
         "PyBullet reference, 128²",

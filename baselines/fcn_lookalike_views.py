@@ -69,7 +69,7 @@ def main(args: Args):
                     if qpos is None:
                         continue
                     base.agent.robot.set_qpos(qpos)
-                    base._hand_images = None  # the task caches one render per step; this is a new view
+                    base.forget_view()
                     images = base._hand_camera_images()
                     segmentation = images["segmentation"][0, ..., 0].numpy()
                     if (segmentation == int(base.target_seg_id[0])).any():

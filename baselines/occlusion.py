@@ -50,7 +50,7 @@ def search_view(base) -> tuple[int, int]:
     pos = torch.tensor([[SEARCH_POS[0] * math.cos(azimuth), SEARCH_POS[0] * math.sin(azimuth), SEARCH_POS[2]]])
     qpos, _ = solve_ik(pos, base.agent.controller.config.pitch)
     base.agent.robot.set_qpos(qpos)
-    base._hand_images = base._unoccluded_pixels = None
+    base.forget_view()
     segmentation = base._hand_camera_images()["segmentation"][..., 0]
     visible = int((segmentation == base.target_seg_id[:, None, None]).sum())
     unoccluded = int(base._target_pixels_without_panels()[0]) if base.panels else visible

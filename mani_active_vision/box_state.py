@@ -1,6 +1,8 @@
 """Observation wrapper: the env's observation -> the target's bounding box, the low-dimensional state for control.
 
 `source="ground_truth"` takes the box from the wrist camera's segmentation (needs a `segmentation` obs);
+`source="projection"` from the task's render-free mask of the target (`render_free=True`, a `state_dict` obs:
+its `extra/target_bbox`; nothing is rendered, an approximation: docs/speed.md);
 `source="fcn"` from a segmenter (the one-shot FCN, `mani_active_vision.agents.fcn`) on the wrist view and the
 target image (needs an `rgb` obs), keeping the mask's largest connected region only (docs/design.md §10).
 After every observation `last_mask` holds the mask the box came from, `last_presence` the probability that the
@@ -17,7 +19,7 @@ import torch
 
 from mani_active_vision.boxes import mask_to_box
 
-BOX_SOURCES = ("ground_truth", "fcn")
+BOX_SOURCES = ("ground_truth", "fcn", "projection")
 
 
 class BoxState(gym.ObservationWrapper):
@@ -35,7 +37,9 @@ class BoxState(gym.ObservationWrapper):
         super().__init__(env)
         if source not in BOX_SOURCES:
             raise ValueError(f"source={source!r} is not one of: {', '.join(BOX_SOURCES)}")
-        needed = "segmentation" if source == "ground_truth" else "rgb"
+        needed = dict(ground_truth="segmentation", fcn="rgb", projection="state_dict")[source]
+        if source == "projection" and not getattr(env.unwrapped, "render_free", False):
+            raise ValueError("BoxState(source='projection') needs the task made with render_free=True")
         if needed not in env.unwrapped.obs_mode:
             raise ValueError(
                 f"BoxState(source={source!r}) needs an obs_mode with {needed}, got {env.unwrapped.obs_mode!r}"
@@ -60,7 +64,10 @@ class BoxState(gym.ObservationWrapper):
         base = self.env.unwrapped
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
         self.last_observation = obs
-        if self.source == "fcn":
+        if self.source == "projection":
+            mask = base.projected_target_mask()  # the same mask the task's info came from this step
+            presence = mask.flatten(1).any(1).float()
+        elif self.source == "fcn":
             mask, presence = self.segmenter.predict_with_presence(
                 batch(obs["sensor_data"]["hand_camera"]["rgb"]),
                 batch(obs["extra"]["target_image"]),

@@ -53,7 +53,9 @@ class EnvConfig:
     max_episode_steps: int = 100
     """steps before an episode is truncated"""
     box_source: str = "ground_truth"
-    """the box state: ground_truth (segmentation), fcn (the one-shot FCN on rgb) or none (raw observations)"""
+    """the box state: ground_truth (segmentation), fcn (the one-shot FCN on rgb), projection (the target's hull
+    projected, nothing rendered: for state-based training, an approximation; docs/speed.md) or none (raw
+    observations)"""
     fcn_weights: str = ""
     """FCN checkpoint for box_source=fcn (empty: the shipped agents/weights/fcn.pt)"""
     with_ee_pos: bool = False
@@ -78,7 +80,7 @@ class EnvConfig:
     def task_kwargs(self) -> dict:
         """Keyword arguments of `gym.make(ENV_ID, ...)` for this config (one env, CPU renderer)."""
         return dict(
-            obs_mode="rgb+segmentation",
+            obs_mode="state_dict" if self.box_source == "projection" else "rgb+segmentation",
             render_backend="cpu",
             max_episode_steps=self.max_episode_steps,
             sensor_configs=dict(hand_camera=dict(width=self.image_size, height=self.image_size)),
@@ -93,6 +95,7 @@ class EnvConfig:
             reward_mode=self.reward_mode,
             target_image_size=self.target_image_size,
             occluders=self.occluders,
+            render_free=self.box_source == "projection",
         )
 
     def replace(self, **changes) -> EnvConfig:

@@ -7,6 +7,7 @@ boxes, cylinders and spheres in a small palette. Every object is scaled to a lar
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import xml.etree.ElementTree as ET
@@ -16,6 +17,7 @@ from functools import cache
 import numpy as np
 import pybullet_data
 import sapien
+import scipy.spatial
 import trimesh
 
 OBJECT_SETS = ("train", "unseen", "primitives")
@@ -87,6 +89,32 @@ def unit_bounds(model: ObjectModel) -> np.ndarray:
     if model.shape == "mesh":
         return _mesh_bounds(model.mesh_path) * model.mesh_scale
     return np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])
+
+
+@cache
+def _unit_hull(path: str) -> np.ndarray:
+    mesh = trimesh.load(path, force="mesh", process=False)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    return vertices[scipy.spatial.ConvexHull(vertices).vertices]
+
+
+def hull_points(model: ObjectModel, size: float) -> np.ndarray:
+    """Points (V, 3) in the actor's frame whose convex hull is that of the object `build_object` makes (for
+    render-free masks: `mani_active_vision.projection`)."""
+    bounds = unit_bounds(model)
+    scale = size / float((bounds[1] - bounds[0]).max())
+    half = size / 2
+    if model.shape == "mesh":
+        return _unit_hull(model.mesh_path) * model.mesh_scale * scale
+    if model.shape == "box":
+        return np.array(list(itertools.product(*[(-h, h) for h in (half, half * 0.8, half * 0.7)])))
+    if model.shape == "sphere":  # a Fibonacci lattice of 64 points on the sphere
+        k = np.arange(64) + 0.5
+        polar, azimuth = np.arccos(1 - 2 * k / 64), np.pi * (1 + 5**0.5) * k
+        return half * np.stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)], -1)
+    angle = np.linspace(0, 2 * np.pi, 32, endpoint=False)  # cylinder, upright
+    ring = np.stack([half * 0.6 * np.cos(angle), half * 0.6 * np.sin(angle)], -1)
+    return np.concatenate([np.c_[ring, np.full(32, -half)], np.c_[ring, np.full(32, half)]])
 
 
 def build_object(scene, model: ObjectModel, size: float, color, name: str, scene_idxs=None, collision=False):

@@ -146,7 +146,7 @@ def render_scene_views(
     for _ in range(config.views_per_scene):
         _, mode, qpos = sample_camera_position(rng, object_xy, config, lookalikes, base.panel_layout())
         base.agent.robot.set_qpos(torch.as_tensor(qpos)[None])
-        base._hand_images = None  # the task caches one render per step; this is a new view
+        base.forget_view()
         images = base._hand_camera_images()
         scenes.append(images["rgb"][0].cpu().numpy())
         masks.append((images["segmentation"][0, ..., 0] == target_id).cpu().numpy())

@@ -28,6 +28,10 @@ the image. Defaults 0.05 and 0.15 (≈19 px at 128²): a privileged planner
 at 0.06, 85% at 0.08 and 80% at 0.10; a tighter tolerance is often unreachable since one orbit step moves
 a close object 25-45 px.
 
+`render_free=True` (with a state obs_mode, no occluders) takes the target's mask from its convex hull projected
+into the wrist camera instead of rendering it (`mani_active_vision.projection`: an approximation, measured
+in docs/speed.md), so that a step renders nothing.
+
 Reward: `dense` = target_fraction (the paper's); `normalized_dense` = target_fraction / success_fraction,
 capped at 1; `sparse` = success. Success does not end the episode unless `terminate_on_success`.
 """
@@ -53,8 +57,9 @@ from mani_active_vision.boxes import target_stats
 from mani_active_vision.brdf_lut import supply_brdf_lut
 from mani_active_vision.culling import ViewCuller
 from mani_active_vision.floor import build_floor
-from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, object_set
+from mani_active_vision.objects import OBJECT_SETS, OBJECT_SIZE, PALETTE, build_object, hull_points, object_set
 from mani_active_vision.occluders import MIN_VISIBLE_FRACTION, build_panel, place_panels
+from mani_active_vision.projection import extrinsic_cv, hull_mask, rotation_matrix
 from mani_active_vision.robots.iiwa import CAMERA_PITCH, SEARCH_POS, IiwaWristCam
 from mani_active_vision.robots.orbit_controller import camera_end
 
@@ -121,6 +126,7 @@ class ActiveVisionFindEnv(BaseEnv):
         terminate_on_success: bool = False,
         target_image_size: int = 64,
         occluders: int = 0,
+        render_free: bool = False,
         num_envs: int = 1,
         reconfiguration_freq: int | None = None,
         obs_mode: str | None = None,
@@ -143,6 +149,15 @@ class ActiveVisionFindEnv(BaseEnv):
                 f"occluders={occluders!r} must be an integer from 0 to num_objects={num_objects} (one panel in "
                 "front of each of the first `occluders` objects)"
             )
+        if render_free and (obs_mode is None or "rgb" in obs_mode or "segmentation" in obs_mode):
+            raise ValueError(
+                f"render_free=True renders nothing, so obs_mode={obs_mode!r} has no images to give: use one of "
+                "state, state_dict, none"
+            )
+        if render_free and occluders:
+            raise ValueError(
+                f"render_free=True projects the target alone: nothing hides it, so occluders={occluders!r} must be 0"
+            )
         if not 0 < step_size <= 0.1:
             raise ValueError(f"step_size={step_size!r} must be in (0, 0.1] m")
         if not 0 < success_fraction <= 1:
@@ -153,6 +168,7 @@ class ActiveVisionFindEnv(BaseEnv):
             raise ValueError(f"target_image_size={target_image_size!r} must be an integer from 16 to 512")
         self.num_objects = int(num_objects)
         self.occluders = int(occluders)
+        self.render_free = bool(render_free)
         self.object_set = object_set
         self.placement = placement
         self.start_pose = start_pose
@@ -161,9 +177,9 @@ class ActiveVisionFindEnv(BaseEnv):
         self.success_center_tol = float(success_center_tol)
         self.terminate_on_success = terminate_on_success
         self.target_image_size = int(target_image_size)
-        self._hand_images = None
-        self._unoccluded_pixels = None
+        self.forget_view()
         self._clears = 0
+        self._camera_model = None
         if reconfiguration_freq is None:
             reconfiguration_freq = 1 if num_envs == 1 else 0
         super().__init__(
@@ -206,7 +222,7 @@ class ActiveVisionFindEnv(BaseEnv):
         self.ground = build_floor(self.scene)
         models = object_set(self.object_set)
         slots = [[] for _ in range(self.num_objects)]
-        copies, bottoms, self.object_names, self.object_colors = [], [], [], []
+        copies, bottoms, hulls, self.object_names, self.object_colors = [], [], [], [], []
         for env in range(self.num_envs):
             rng = (
                 np.random.RandomState(self.fixed_scene_seed)
@@ -234,6 +250,7 @@ class ActiveVisionFindEnv(BaseEnv):
             self.remove_from_state_dict_registry(copy)
             copies.append(copy)
             bottoms.append(env_bottoms)
+            hulls.append(hull_points(chosen[0], sizes[0]))
             self.object_names.append([m.name for m in chosen])
             self.object_colors.append([tuple(float(c) for c in color) for color in colors])
         self.objects = [Actor.merge(actors, name=f"object_{k}") for k, actors in enumerate(slots)]
@@ -251,6 +268,8 @@ class ActiveVisionFindEnv(BaseEnv):
         self.target_copy = Actor.merge(copies, name="target_copy")
         self.add_to_state_dict_registry(self.target_copy)
         self._object_bottoms = torch.tensor(bottoms, dtype=torch.float32, device=self.device)
+        most = max(len(h) for h in hulls)  # envs' hulls padded to one length by repeating a point
+        self._target_hulls = np.stack([np.concatenate([h, np.repeat(h[-1:], most - len(h), 0)]) for h in hulls])
         self._target_image = torch.zeros(
             (self.num_envs, self.target_image_size, self.target_image_size, 3), dtype=torch.uint8, device=self.device
         )
@@ -336,11 +355,15 @@ class ActiveVisionFindEnv(BaseEnv):
             sapien_env.gc = gc
 
     def reset(self, seed=None, options=None):
-        self._hand_images = None
-        self._unoccluded_pixels = None
+        self.forget_view()
         if isinstance(seed, (int, np.integer)):
             gym.Env.reset(self, seed=int(seed))  # gymnasium's own seeding (env.np_random), which BaseEnv skips
         return super().reset(seed=seed, options=options)
+
+    def forget_view(self):
+        """Drop what was seen from the current view (the render, the panel-free count, the projected mask),
+        which the task keeps for one step: call it after moving the arm or the scene by hand."""
+        self._hand_images = self._unoccluded_pixels = self._projected_mask = None
 
     def panel_layout(self) -> torch.Tensor:
         """(N, occluders, 3) = x, y, yaw of every panel, from the actors' poses (so a restored state agrees)."""
@@ -352,8 +375,7 @@ class ActiveVisionFindEnv(BaseEnv):
 
     def step(self, action):
         self._check_action(action)
-        self._hand_images = None
-        self._unoccluded_pixels = None
+        self.forget_view()
         if self.panels:  # the controller keeps the camera end of the arm out of the panels
             self.agent.controller.panels = self.panel_layout()
         obs, reward, terminated, truncated, info = super().step(action)
@@ -376,8 +398,7 @@ class ActiveVisionFindEnv(BaseEnv):
             )
 
     def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
-        self._hand_images = None
-        self._unoccluded_pixels = None
+        self.forget_view()
         super().set_state_dict(state, env_idx)
 
     # ------------------------------------------------------------------ sensing
@@ -463,11 +484,34 @@ class ActiveVisionFindEnv(BaseEnv):
             fraction = torch.where(borders, pixels / unoccluded.clamp(min=1), fraction)
         return fraction
 
+    def projected_target_mask(self) -> torch.Tensor:
+        """(N, H, W) bool: the target's convex hull projected into the wrist camera, nothing rendered
+        (`mani_active_vision.projection`)."""
+        if self._projected_mask is None:  # once per step: the reward, the info and the box state share it
+            camera = self._sensors["hand_camera"]
+            if self._camera_model is None:  # (intrinsic, local pose): fixed for the env's life
+                local = camera.config.pose
+                self._camera_model = (
+                    camera.camera.get_intrinsic_matrix().cpu().numpy(),
+                    Pose.create(local).raw_pose[0].cpu().numpy(),
+                )
+            intrinsic, local_pose = self._camera_model
+            target = self.target.pose.raw_pose.cpu().numpy()  # (N, 7)
+            points = self._target_hulls @ rotation_matrix(target[:, 3:]).transpose(0, 2, 1) + target[:, None, :3]
+            extrinsic = extrinsic_cv(camera.config.mount.pose.raw_pose.cpu().numpy(), local_pose)
+            self._projected_mask = hull_mask(points, extrinsic, intrinsic, camera.config.width).to(self.device)
+        return self._projected_mask
+
     def evaluate(self) -> dict:
-        segmentation = self._hand_camera_images()["segmentation"][..., 0]
-        target = segmentation == self.target_seg_id.to(segmentation.device)[:, None, None]
-        stats = target_stats(target)
-        visible_fraction = self._visible_fraction(segmentation, target)
+        if self.render_free:
+            target = self.projected_target_mask()
+            stats = target_stats(target)
+            visible_fraction = stats["target_visible"].float()
+        else:
+            segmentation = self._hand_camera_images()["segmentation"][..., 0]
+            target = segmentation == self.target_seg_id.to(segmentation.device)[:, None, None]
+            stats = target_stats(target)
+            visible_fraction = self._visible_fraction(segmentation, target)
         success = (
             stats["target_visible"]
             & ~stats["touches_border"]

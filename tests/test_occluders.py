@@ -97,7 +97,7 @@ def test_a_target_cut_by_a_panel_is_not_a_success():
     panel.set_pose(Pose.create_from_pq(torch.tensor([[0.0, 0.0, -3.0]])))  # out of the way first
     qpos = _success_view(base)
     base.agent.robot.set_qpos(qpos[None])
-    base._hand_images = base._unoccluded_pixels = None
+    base.forget_view()
     info = base.evaluate()
     assert bool(info["success"][0]) and float(info["target_visible_fraction"][0]) == 1.0
     # Stand the panel between the camera and the target, its edge on the line of sight to the target's centre.
@@ -111,7 +111,7 @@ def test_a_target_cut_by_a_panel_is_not_a_success():
         panel.set_pose(
             Pose.create_from_pq(torch.tensor([[*centre.tolist(), 0.0]]), [math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)])
         )
-        base._hand_images = base._unoccluded_pixels = None
+        base.forget_view()
         info = base.evaluate()
         fraction = float(info["target_visible_fraction"][0])
         if cut:
@@ -136,7 +136,7 @@ def test_the_search_pose_sees_no_target_behind_a_panel_straight_in_front():
     pos = torch.tensor([[SEARCH_POS[0] * math.cos(azimuth), SEARCH_POS[0] * math.sin(azimuth), SEARCH_POS[2]]])
     qpos, _ = solve_ik(pos, base.agent.controller.config.pitch)
     base.agent.robot.set_qpos(qpos)
-    base._hand_images = base._unoccluded_pixels = None
+    base.forget_view()
     info = base.evaluate()
     assert not bool(info["target_visible"][0]) and float(info["target_visible_fraction"][0]) == 0.0
     assert int(base._target_pixels_without_panels()[0]) > 0  # in view but for the panel

@@ -25,7 +25,7 @@ from mani_active_vision.metrics import Trajectory
 
 
 def test_env_config_validates_and_replaces_by_name():
-    with pytest.raises(ValueError, match="box_source='yolo' is not one of: ground_truth, fcn, none"):
+    with pytest.raises(ValueError, match="box_source='yolo' is not one of: ground_truth, fcn, projection, none"):
         EnvConfig(box_source="yolo")
     with pytest.raises(ValueError, match="with_ee_pos appends to the box state"):
         EnvConfig(box_source="none", with_ee_pos=True)

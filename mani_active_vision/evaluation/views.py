@@ -44,7 +44,7 @@ def view_stats(base, qpos: torch.Tensor) -> dict[str, np.ndarray]:
     rows = []
     for q in qpos:
         base.agent.robot.set_qpos(q[None])
-        base._hand_images = base._unoccluded_pixels = None
+        base.forget_view()
         seg = base._hand_camera_images()["segmentation"][..., 0]
         target = seg == base.target_seg_id[:, None, None]
         rows.append({**target_stats(target), "target_visible_fraction": base._visible_fraction(seg, target)})
