@@ -292,7 +292,10 @@ class ActiveVisionFindEnv(BaseEnv):
                 fixed_rng = np.random.RandomState(self.fixed_scene_seed)
                 yaw = fixed_rng.uniform(0, 2 * np.pi, self.num_objects)
                 layouts.append(np.concatenate([xy, yaw[:, None]], -1))
-                panels.append(place_panels(fixed_rng, xy, self.occluders, self._search_camera_rz()))
+                fixed_panels = place_panels(fixed_rng, xy, self.occluders, self._search_camera_rz())
+                if fixed_panels is None:  # the fixed scene has one layout: there is no other to draw
+                    raise ValueError(f"occluders={self.occluders} find no free spot in the fixed scene")
+                panels.append(fixed_panels)
                 continue
             while True:  # a new layout when the panels find no room (rare; never with occluders=0)
                 placed = self._place_objects(rng)
