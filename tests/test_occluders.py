@@ -12,7 +12,14 @@ from mani_skill.utils.structs import Pose
 import mani_active_vision as mav
 from mani_active_vision.evaluation.views import candidate_positions, meets, view_stats
 from mani_active_vision.objects import OBJECT_SIZE
-from mani_active_vision.occluders import CLEARANCE, PANEL_SIZE, _distance_to_panel, panel_corners, panel_distance
+from mani_active_vision.occluders import (
+    CLEARANCE,
+    PANEL_SIZE,
+    _distance_to_panel,
+    panel_corners,
+    panel_distance,
+    points_inside,
+)
 from mani_active_vision.robots.iiwa import SEARCH_POS
 from mani_active_vision.robots.orbit_controller import camera_end, forward_position, solve_ik, step_allowed
 
@@ -140,3 +147,22 @@ def test_the_search_pose_sees_no_target_behind_a_panel_straight_in_front():
     info = base.evaluate()
     assert not bool(info["target_visible"][0]) and float(info["target_visible_fraction"][0]) == 0.0
     assert int(base._target_pixels_without_panels()[0]) > 0  # in view but for the panel
+
+
+def test_data_views_keep_the_camera_out_of_the_panels():
+    from mani_active_vision.segmentation_data import SegmentationDataConfig, sample_camera_position
+
+    config = SegmentationDataConfig(view_mode_probs=(1, 0, 0, 0), height_range=(0.12, 0.5))
+    object_xy = np.array([[0.8, 0.0], [0.0, 0.8]])
+    panels = torch.tensor([[[0.62, 0.0, 0.0]]])  # straight in front of the target, where close views go
+    pitch = cached_task().unwrapped.agent.controller.config.pitch
+    rng, free_rng = np.random.default_rng(0), np.random.default_rng(0)
+    inside_without = 0
+    for _ in range(60):
+        pos, _, _ = sample_camera_position(rng, object_xy, config, panels=panels)
+        assert not points_inside(camera_end(torch.tensor(pos[None], dtype=torch.float32), pitch), panels).any()
+        free, _, _ = sample_camera_position(free_rng, object_xy, config)
+        inside_without += bool(
+            points_inside(camera_end(torch.tensor(free[None], dtype=torch.float32), pitch), panels).any()
+        )
+    assert inside_without > 0  # without the panels some of these views would be inside one
