@@ -3,6 +3,7 @@
 The default command set used for the shipped weights (`scripts/make_fcn.sh` runs them all):
   python baselines/collect_segmentation_data.py --out-dir data/seg64/train --object-set train --num-scenes 1500 --seed 0 --workers 2
   ... val (train objects, seed 100000), test_train (seed 200000), test_unseen (unseen objects, seed 300000)
+  python baselines/collect_segmentation_data.py --out-dir data/seg64_occ2/test_unseen --object-set unseen --num-scenes 50 --seed 320000 --occluders 2
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ class Args:
     """rendering processes (shards are spread over them; the data do not depend on it)"""
     view_mode_probs: tuple[float, ...] = SegmentationDataConfig.view_mode_probs
     """probabilities of the view modes (segmentation_data.VIEW_MODES: target, distractor, anywhere, lookalike)"""
+    occluders: int = 0
+    """the task's panels per scene: targets partly hidden, panels in view (docs/task.md#occluders)"""
 
 
 def main(args: Args):
@@ -47,6 +50,7 @@ def main(args: Args):
         image_size=args.image_size,
         seed=args.seed,
         view_mode_probs=args.view_mode_probs,
+        occluders=args.occluders,
     )
     manifest = collect_segmentation_data(
         args.out_dir, config, scenes_per_shard=args.scenes_per_shard, workers=args.workers
