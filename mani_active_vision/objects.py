@@ -95,6 +95,9 @@ def unit_bounds(model: ObjectModel) -> np.ndarray:
 def _unit_hull(path: str) -> np.ndarray:
     mesh = trimesh.load(path, force="mesh", process=False)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    vertices = vertices[np.isfinite(vertices).all(1)]
+    if len(vertices) < 4:  # random_urdfs/168 reads as NaN vertices only (its bounds are NaN too)
+        return np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
     return vertices[scipy.spatial.ConvexHull(vertices).vertices]
 
 

@@ -250,7 +250,8 @@ class ActiveVisionFindEnv(BaseEnv):
             self.remove_from_state_dict_registry(copy)
             copies.append(copy)
             bottoms.append(env_bottoms)
-            hulls.append(hull_points(chosen[0], sizes[0]))
+            if self.render_free:
+                hulls.append(hull_points(chosen[0], sizes[0]))
             self.object_names.append([m.name for m in chosen])
             self.object_colors.append([tuple(float(c) for c in color) for color in colors])
         self.objects = [Actor.merge(actors, name=f"object_{k}") for k, actors in enumerate(slots)]
@@ -268,8 +269,9 @@ class ActiveVisionFindEnv(BaseEnv):
         self.target_copy = Actor.merge(copies, name="target_copy")
         self.add_to_state_dict_registry(self.target_copy)
         self._object_bottoms = torch.tensor(bottoms, dtype=torch.float32, device=self.device)
-        most = max(len(h) for h in hulls)  # envs' hulls padded to one length by repeating a point
-        self._target_hulls = np.stack([np.concatenate([h, np.repeat(h[-1:], most - len(h), 0)]) for h in hulls])
+        if self.render_free:  # envs' hulls padded to one length by repeating a point
+            most = max(len(h) for h in hulls)
+            self._target_hulls = np.stack([np.concatenate([h, np.repeat(h[-1:], most - len(h), 0)]) for h in hulls])
         self._target_image = torch.zeros(
             (self.num_envs, self.target_image_size, self.target_image_size, 3), dtype=torch.uint8, device=self.device
         )
