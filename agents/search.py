@@ -3,7 +3,7 @@ scripted exploration (issue 16), one file in the CleanRL manner (the shape of Cl
 with a GRU on the box state instead of an LSTM on pixels).
 
     python -m mani_active_vision.agents.search --help
-    python -m mani_active_vision.agents.search --seed 0 --total-steps 120000      # 2 workers, ground-truth box
+    python -m mani_active_vision.agents.search --seed 0 --total-steps 50000       # 2 workers, ground-truth box
     python baselines/evaluate.py --policy memory --checkpoint runs/search/seed0/agent.pt --env.box-source fcn \\
         --env.object-set unseen --episodes 50                                      # as deployed
 
@@ -14,8 +14,13 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   made with `with_ee_pos`) and a one-hot of its own previous action;
 - a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (the
   sequences are replayed with the same resets from the rollout's first state) and in evaluation;
-- PPO (clipped surrogate, GAE, entropy bonus) on `num_envs` `make_vec_env` worker processes; a rollout is
-  `num_steps` steps of every env, and each minibatch is whole sequences of some of the envs;
+- first, behaviour cloning of the scripted servo (`demo_episodes` per env: its actions, cross-entropy; the
+  value head fit to the learner's returns), because PPO from scratch found success too rarely to learn in
+  the budget (docs/search.md, "what did not work");
+- then PPO (clipped surrogate, GAE, entropy bonus) on `num_envs` `make_vec_env` worker processes; a rollout
+  is `num_steps` steps of every env, and each minibatch is whole sequences of some of the envs; `demo_coef`
+  (decayed to 0) times the cross-entropy against the servo's action in the agent's own states (DAgger's
+  labels; the servo runs beside the agent) joins PPO's loss;
 - the learner's reward is the DQN's `hold` reward (`agents.dqn.LearnerReward`, docs/design.md §9):
   potential-based shaping ×5 on the log of the target's share and how centred it is, 1 at the first
   success, 0.2 for every later step in success, 0.02 per step and 0.1 more for a refused one; the episode is
@@ -65,7 +70,7 @@ class Args:
     """the env the agent learns in (needs with_ee_pos; stored in the checkpoint, evaluation reads it back)"""
     seed: int = 0
     """seed of the run (torch, numpy, the envs' first episodes)"""
-    total_steps: int = 120_000
+    total_steps: int = 50_000
     """env steps in all (summed over the envs), rounded down to whole rollouts"""
     num_envs: int = 2
     """make_vec_env worker processes that collect at once"""

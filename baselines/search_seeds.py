@@ -4,7 +4,7 @@ exploration + the shipped DQN, the scripted servo and the DQN without exploratio
 table per seed with mean ± std and the worst seed, the learning curves (success vs env steps) and the
 camera's azimuth vs step beside the scripted sweep (docs/search.md).
 
-    python baselines/search_seeds.py --seeds 0 1 2 --total-steps 200000
+    python baselines/search_seeds.py --seeds 0 1 2 --total-steps 50000
     python baselines/search_seeds.py --report-only             # the table and figures from what is finished
 
 Runs are kept under `out_dir/seed<k>` and skipped when finished (a run stopped by Ctrl-C is trained again);
@@ -46,7 +46,7 @@ BOXES = ("fcn", "ground_truth")
 class Args:
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     """training seeds"""
-    total_steps: int = 200_000
+    total_steps: int = 50_000
     """env steps per training run"""
     train: search.Args = field(default_factory=search.Args)
     """the learner's options (seed, total steps and folder are this script's)"""

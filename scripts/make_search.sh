@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 PY=.venv/bin/python
 SEEDS=${SEEDS:-0 1 2}
-STEPS=${STEPS:-200000}
+STEPS=${STEPS:-50000}
 SHIP_SEED=${SHIP_SEED:-0}
 # shellcheck disable=SC2086
 $PY baselines/search_seeds.py --seeds $SEEDS --total-steps "$STEPS" "$@"
