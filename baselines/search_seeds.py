@@ -134,7 +134,7 @@ def evaluate_cached(args: Args, path: str, config: EnvConfig, name: str, box: st
 
 
 def baselines(args: Args, box: str) -> dict[str, dict]:
-    """The baselines' summaries on this box: explore -> dqn (as shipped), servo, dqn without exploration."""
+    """The baselines' evaluations on this box: explore -> dqn (as shipped), servo, dqn without exploration."""
     dqn_env = eval_config(checkpoint_env_config(args.dqn_checkpoint), args, box)
     suffix = f"{box}_{args.eval_episodes}.json"
     out = {}
@@ -147,7 +147,7 @@ def baselines(args: Args, box: str) -> dict[str, dict]:
         config = dqn_env if name != "servo" else eval_config(EnvConfig(), args, box)
         if args.report_only and not os.path.exists(path):
             continue
-        out[label] = evaluate_cached(args, path, config, name, box, **kwargs)["summary"]
+        out[label] = evaluate_cached(args, path, config, name, box, **kwargs)
     return out
 
 
@@ -161,8 +161,14 @@ def evaluate_seed(args: Args, seed: int, box: str) -> dict:
     return evaluate_cached(args, memory_path(args, seed, box), config, "memory", box, checkpoint=checkpoint)
 
 
-def cells(summary: dict) -> str:
-    return " | ".join(
+def seen_share(episodes: list[dict]) -> float:
+    """The share of episodes in which the target was ever in view (steps to see is the mean over those)."""
+    return float(np.mean([e["steps_to_see"] is not None for e in episodes]))
+
+
+def cells(result: dict) -> str:
+    summary = result["summary"]
+    return f"{seen_share(result['episodes']):.2f} | " + " | ".join(
         "–"
         if summary[k] is None or math.isnan(summary[k])
         else f"{summary[k]:.1f}"
@@ -173,28 +179,33 @@ def cells(summary: dict) -> str:
 
 
 def table(args: Args, box: str) -> str:
-    header = "| agent | training s | env steps | success | success at end | focus held | SPL | steps to see | steps to success |"
-    lines = [header, "|" + "---|" * 9]
-    summaries = []
+    header = (
+        "| agent | training s | env steps | saw the target | success | success at end | focus held | SPL "
+        "| steps to see | steps to success |"
+    )
+    lines = [header, "|" + "---|" * 10]
+    results = []
     for seed in args.seeds:
         path = memory_path(args, seed, box)
         if not os.path.exists(path):
             continue
         history = read_json(os.path.join(seed_dir(args, seed), "history.json"))
-        summary = read_json(path)["summary"]
-        summaries.append(summary)
-        lines.append(f"| memory seed {seed} | {history['seconds']:.0f} | {history['env_steps']} | {cells(summary)} |")
-    if summaries:
+        result = read_json(path)
+        results.append(result)
+        lines.append(f"| memory seed {seed} | {history['seconds']:.0f} | {history['env_steps']} | {cells(result)} |")
+    if results:
+        summaries = [r["summary"] for r in results]
         means = " | ".join(spread([s[k] for s in summaries], 1 if k.startswith("steps") else 2) for k in COLUMNS)
-        lines.append(f"| **memory: mean ± std over {len(summaries)} seeds** | | | {means} |")
-        worst = min(summaries, key=lambda s: s["success"])
+        seen = spread([seen_share(r["episodes"]) for r in results])
+        lines.append(f"| **memory: mean ± std over {len(results)} seeds** | | | {seen} | {means} |")
+        worst = min(results, key=lambda r: r["summary"]["success"])
         lines.append(f"| memory: worst seed (by success) | | | {cells(worst)} |")
-    for label, summary in baselines(args, box).items():
-        lines.append(f"| {label} | | | {cells(summary)} |")
+    for label, result in baselines(args, box).items():
+        lines.append(f"| {label} | | | {cells(result)} |")
     return "\n".join(lines)
 
 
-def plot_learning_curves(args: Args, path: str, bin_steps: int = 10_000):
+def plot_learning_curves(args: Args, path: str, bin_steps: int = 5_000):
     """Training success and success at the end (sampled actions) vs env steps, in bins of `bin_steps`:
     mean ± std over the seeds."""
     histories = [
@@ -218,6 +229,10 @@ def plot_learning_curves(args: Args, path: str, bin_steps: int = 10_000):
         x = edges[1:]
         ax.plot(x, mean, label=f"{label} ({len(histories)} seeds)")
         ax.fill_between(x, mean - std, mean + std, alpha=0.25)
+    demo_steps = read_json(os.path.join(seed_dir(args, args.seeds[0]), "history.json")).get("demo_env_steps", 0)
+    if demo_steps:
+        ax.axvline(demo_steps, color="grey", linestyle="--", linewidth=1)
+        ax.text(demo_steps, 0.95, " PPO from here (before: the servo's episodes, cloned)", fontsize=7, color="grey")
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"training episodes' share ({bin_steps:,}-step bins)")
     ax.set_title("memory agent (recurrent PPO), ground-truth box, train objects")
@@ -278,7 +293,7 @@ def plot_paths(args: Args, path: str):
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("commanded azimuth (degrees)")
     axes[0].legend(fontsize=8)
-    fig.suptitle("where the camera looks: dots = first success", fontsize=10)
+    fig.suptitle("where the camera looks (the sweep is the same every episode): dots = first success", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -302,12 +317,13 @@ def main(args: Args):
         text.append(f"### {box} box\n\n{table(args, box)}\n")
     note = (
         f"({args.eval_episodes} evaluation episodes per agent from seed 1,000,000, {args.eval_object_set} objects; "
-        "focus held and steps over the episodes where they exist; memory agents greedy)\n"
+        "saw the target: the share of episodes in which it was ever in view; focus held and steps over the episodes "
+        "where they exist; memory agents greedy)\n"
     )
     with open(os.path.join(args.out_dir, "table.md"), "w") as f:
         f.write("\n".join(text) + "\n" + note)
     print("\n".join(text) + "\n" + note)
-    plot_learning_curves(args, os.path.join(args.figures_dir, "search_learning_curve.png"))
+    plot_learning_curves(args, os.path.join(args.figures_dir, "search_learning_curve.png"), bin_steps=5_000)
     if not args.report_only or os.path.exists(
         os.path.join(args.out_dir, f"paths_seed{args.path_seed}_{args.path_episodes}.json")
     ):
