@@ -19,8 +19,8 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   the budget (docs/search.md, "what did not work");
 - then PPO (clipped surrogate, GAE, entropy bonus) on `num_envs` `make_vec_env` worker processes; a rollout
   is `num_steps` steps of every env, and each minibatch is whole sequences of some of the envs; `demo_coef`
-  (decayed to 0) times the cross-entropy against the servo's action in the agent's own states (DAgger's
-  labels; the servo runs beside the agent) joins PPO's loss;
+  (going linearly to `demo_coef_end`, 0 by default) times the cross-entropy against the servo's action in
+  the agent's own states (DAgger's labels; the servo runs beside the agent) joins PPO's loss;
 - the learner's reward is the DQN's `hold` reward (`agents.dqn.LearnerReward`, docs/design.md §9):
   potential-based shaping ×5 on the log of the target's share and how centred it is, 1 at the first
   success, 0.2 for every later step in success, 0.02 per step and 0.1 more for a refused one; the episode is
@@ -122,7 +122,9 @@ class Args:
     """Adam learning rate of the behaviour cloning"""
     demo_coef: float = 1.0
     """weight in PPO's loss of the cross-entropy against the servo's action in the agent's own states (DAgger's
-    labels), decayed linearly to 0 over the run (0: off)"""
+    labels), at the start of PPO; it goes linearly to demo_coef_end over the run (both 0: off)"""
+    demo_coef_end: float = 0.0
+    """that weight at the end of the run (demo_coef: constant)"""
     run_dir: str = "runs/search"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -325,7 +327,8 @@ def train(args: Args, progress: bool = True) -> dict:
                     )
                 if args.anneal_lr:
                     optimizer.param_groups[0]["lr"] = args.learning_rate * (1.0 - update / updates)
-                demo_weight = args.demo_coef * (1.0 - update / updates)  # imitation fades out over PPO
+                progress_made = update / updates  # the imitation's weight goes linearly to demo_coef_end
+                demo_weight = args.demo_coef + (args.demo_coef_end - args.demo_coef) * progress_made
                 rollout.first_state = state.clone()
                 for t in range(steps):
                     rollout.x[t], rollout.starts[t] = collector.features(), collector.starts
