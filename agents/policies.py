@@ -14,6 +14,8 @@ zeros when the target is not seen. Names: see POLICIES.
   search height until the target is seen once, then the policy named `then` acts for the rest of the
   episode (the paper: DQN takes over). `then=None` keeps exploring (a baseline that only searches).
 - `dqn`: a trained `agents.dqn` Q-network, greedy (or ε-greedy with `epsilon`).
+- `memory`: the recurrent agent of `agents.search` (a GRU over the box, the camera's commanded position and
+  its previous action): it searches, centres and holds with no script; its state is reset by `reset`.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 import torch
 
 from mani_active_vision.agents.q_network import load_q_network
+from mani_active_vision.agents.recurrent_network import features, load_agent
 from mani_active_vision.directions import DIRECTIONS, STAY, action_names
 
 LEFT, RIGHT, FORWARD, UP, DOWN = (DIRECTIONS.index(d) for d in ("left", "right", "forward", "up", "down"))
@@ -214,11 +217,58 @@ class DQNPolicy:
         return action
 
 
+class MemoryPolicy:
+    """The recurrent actor-critic of `agents.search` (`agents.recurrent_network`): from a checkpoint file or
+    (while training) the live `agent`. Greedy (the most probable action) unless `sample`. Its GRU state and
+    its previous action are reset by `reset` (an episode's start) and carried across `act` calls. The env
+    must give the box with the camera's commanded position (`EnvConfig(with_ee_pos=True)`: a checkpoint
+    trained so sets it) and take the agent's number of actions."""
+
+    def __init__(self, env, checkpoint: str | None = None, seed: int = 0, agent=None, sample: bool = False):
+        if (checkpoint is None) == (agent is None):
+            raise ValueError("MemoryPolicy needs exactly one of checkpoint= (a file) or agent= (a live network)")
+        self.agent, self.config = (agent, {}) if agent is not None else load_agent(checkpoint)
+        self.num_envs = env.unwrapped.num_envs
+        self.num_actions = num_actions(env)
+        if self.num_actions != self.agent.num_actions:
+            raise ValueError(
+                f"the memory agent has {self.agent.num_actions} actions, the env takes {self.num_actions}: "
+                "train and act with the same stay_action"
+            )
+        box_dim = box_array(env.observation_space.sample()).shape[-1]
+        if box_dim != 7:
+            raise ValueError(
+                f"the memory agent acts on the box and the camera's commanded position (7 numbers), the env gives "
+                f"{box_dim}: make it with EnvConfig(with_ee_pos=True)"
+            )
+        self.sample = sample
+        self.generator = torch.Generator().manual_seed(seed)
+        self.state = self.agent.initial_state(self.num_envs)
+        self.last_action = np.full(self.num_envs, -1)
+
+    def reset(self, obs, info):
+        self.state = self.agent.initial_state(self.num_envs)
+        self.last_action[:] = -1
+
+    def act(self, obs, info) -> np.ndarray:
+        x = torch.as_tensor(features(box_array(obs), self.last_action, self.num_actions))[None]
+        with torch.no_grad():
+            logits, _, self.state = self.agent(x, self.state, torch.zeros(1, self.num_envs))
+        logits = logits[0]
+        if self.sample:
+            action = torch.multinomial(torch.softmax(logits, -1), 1, generator=self.generator)[:, 0]
+        else:
+            action = logits.argmax(-1)
+        self.last_action[:] = action.numpy()
+        return action.numpy().astype(np.int64)
+
+
 POLICIES: dict[str, Callable] = {
     "random": RandomPolicy,
     "servo": ServoPolicy,
     "explore": ExplorePolicy,
     "dqn": DQNPolicy,
+    "memory": MemoryPolicy,
 }
 
 
@@ -228,9 +278,13 @@ def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int
     if uses_dqn and not checkpoint:
         raise ValueError(f"policy {name!r} (then {then!r}) needs a DQN checkpoint")
     kwargs = {"checkpoint": checkpoint, "epsilon": epsilon} if uses_dqn else {}
+    if name == "memory":
+        if not checkpoint:
+            raise ValueError("policy 'memory' needs a checkpoint (e.g. agents/weights/search.pt)")
+        kwargs = {"checkpoint": checkpoint}
     if name == "explore":
         kwargs["then"] = then
-    if name in ("random", "explore", "dqn"):
+    if name in ("random", "explore", "dqn", "memory"):
         kwargs["seed"] = seed
     return kwargs
 

@@ -54,5 +54,11 @@ def load_q_network(path: str) -> tuple[QNetwork, dict]:
 
 
 def checkpoint_env_config(path: str) -> EnvConfig:
-    """The env config a DQN checkpoint was trained with."""
-    return EnvConfig.from_dict(load_q_network(path)[1]["env"])
+    """The env config a checkpoint (the DQN's, or any `{"state_dict", "config": {"env": ...}}` file such as
+    the memory agent's) was trained with."""
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"checkpoint {path!r} does not exist")
+    config = torch.load(path, map_location="cpu", weights_only=True)["config"]
+    if "env" not in config:
+        raise ValueError(f"checkpoint {path!r} has no env config: it predates EnvConfig; train it again")
+    return EnvConfig.from_dict(config["env"])

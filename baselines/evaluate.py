@@ -32,11 +32,12 @@ class Args:
     env: EnvConfig = field(default_factory=EnvConfig)
     """the env (default: the checkpoint's, if one is given)"""
     policy: str = "servo"
-    """random, explore, servo or dqn"""
+    """random, explore, servo, dqn or memory"""
     then: str = "none"
     """for --policy explore: who takes over once the target is seen (dqn, servo, random, none)"""
     checkpoint: str = ""
-    """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn"""
+    """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn; the memory agent's (agents/weights/search.pt)
+    for --policy memory"""
     epsilon: float = 0.0
     """for a DQN: the share of random actions (ε-greedy; 0 = greedy)"""
     episodes: int = 20

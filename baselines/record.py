@@ -28,7 +28,7 @@ class Args:
     """the env; box_source none gives the policy the raw observation (random only); the recording shows the
     mask the box came from"""
     policy: str = "random"
-    """policy name, one of mani_active_vision.agents.policies.POLICIES: random, explore, servo, dqn"""
+    """policy name, one of mani_active_vision.agents.policies.POLICIES: random, explore, servo, dqn, memory"""
     episodes: int = 2
     """episodes to record"""
     seed: int = 0
@@ -38,7 +38,7 @@ class Args:
     then: str = "none"
     """for --policy explore: the policy that takes over once the target is seen (servo, dqn, random, none)"""
     checkpoint: str = ""
-    """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn"""
+    """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn; the memory agent's for --policy memory"""
     image_format: str = "jpeg"
     """wrist RGB as jpeg (small) or raw"""
     jpeg_quality: int = 90

@@ -4,7 +4,8 @@ the FCN's box on unseen objects, with the env it was trained in kept as config["
     python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt
 
 scripts/make_dqn.sh makes the shipped agent this way; `baselines/evaluate.py --policy explore --then dqn
---checkpoint agents/weights/dqn.pt` then evaluates it as deployed.
+--checkpoint agents/weights/dqn.pt` then evaluates it as deployed. Any `{"state_dict", "config": {"env"}}`
+checkpoint ships the same way: scripts/make_search.sh ships the memory agent (agents/search.py) with it.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from mani_active_vision.envs import EnvConfig
 @dataclass
 class Args:
     checkpoint: str
-    """the trained DQN checkpoint (q_network.pt)"""
+    """the trained checkpoint (a DQN's q_network.pt, or the memory agent's agent.pt)"""
     out: str = "agents/weights/dqn.pt"
     """where the shipped checkpoint goes"""
     box_source: str = "fcn"

@@ -1,0 +1,429 @@
+"""Recurrent PPO: an agent with memory that searches for the target, centres it and holds it, with no
+scripted exploration (issue 16), one file in the CleanRL manner (the shape of CleanRL's `ppo_atari_lstm.py`,
+with a GRU on the box state instead of an LSTM on pixels).
+
+    python -m mani_active_vision.agents.search --help
+    python -m mani_active_vision.agents.search --seed 0 --total-steps 50000       # 2 workers, ground-truth box
+    python baselines/evaluate.py --policy memory --checkpoint runs/search/seed0/agent.pt --env.box-source fcn \\
+        --env.object-set unseen --episodes 50                                      # as deployed
+
+The paper's DQN without its scripted exploration "completely fails" on random placements; its authors name
+the next step: memory (a sequence model) so that the agent learns to explore. This is that agent:
+- input at every step (`agents.recurrent_network.features`): the target's box (zeros when unseen), the
+  camera's commanded position (azimuth as sine and cosine, radius, height: where it has looked; the env is
+  made with `with_ee_pos`) and a one-hot of its own previous action;
+- a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (the
+  sequences are replayed with the same resets from the rollout's first state) and in evaluation;
+- first, behaviour cloning of the scripted servo (`demo_episodes` per env: its actions, cross-entropy; the
+  value head fit to the learner's returns), because PPO from scratch found success too rarely to learn in
+  the budget (docs/search.md, "what did not work");
+- then PPO (clipped surrogate, GAE, entropy bonus) on `num_envs` `make_vec_env` worker processes; a rollout
+  is `num_steps` steps of every env, and each minibatch is whole sequences of some of the envs; `demo_coef`
+  (going linearly to `demo_coef_end`, 0 by default) times the cross-entropy against the servo's action in
+  the agent's own states (DAgger's labels; the servo runs beside the agent) joins PPO's loss;
+- the learner's reward is the DQN's `hold` reward (`agents.dqn.LearnerReward`, docs/design.md §9):
+  potential-based shaping ×5 on the log of the target's share and how centred it is, 1 at the first
+  success, 0.2 for every later step in success, 0.02 per step and 0.1 more for a refused one; the episode is
+  the task as it is (100 steps from the `sky` start, no end at success), so holding pays;
+- a truncated episode is treated as ended (no bootstrap past the step limit), as CleanRL does.
+The defaults train on the ground-truth box (cheaper than the FCN's, docs/search.md); evaluation on the
+FCN's box is then the deployed condition. `--track` writes the training scalars to TensorBoard.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+import random
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+from tqdm import tqdm
+
+from mani_active_vision.agents.dqn import (
+    SHAPINGS,
+    TRAIN_SEED_STRIDE,
+    LearnerReward,
+    env_info,
+    last_step,
+    tensorboard_writer,
+)
+from mani_active_vision.agents.policies import STAY_INDEX, ServoPolicy, box_array, num_actions
+from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim, save_agent
+from mani_active_vision.envs import EnvConfig
+from mani_active_vision.evaluation.rollout import stop_on_ctrl_c
+from mani_active_vision.json_io import save_json
+from mani_active_vision.metrics import Trajectory, episode_metrics
+from mani_active_vision.vec_env import make_vec_env
+
+
+@dataclass
+class Args:
+    env: EnvConfig = field(default_factory=lambda: EnvConfig(with_ee_pos=True))
+    """the env the agent learns in (needs with_ee_pos; stored in the checkpoint, evaluation reads it back)"""
+    seed: int = 0
+    """seed of the run (torch, numpy, the envs' first episodes)"""
+    total_steps: int = 50_000
+    """env steps in all (summed over the envs), rounded down to whole rollouts"""
+    num_envs: int = 2
+    """make_vec_env worker processes that collect at once"""
+    num_steps: int = 100
+    """steps of each env per rollout (the task's episodes are 100 steps)"""
+    num_minibatches: int = 2
+    """minibatches per epoch; each holds the whole sequences of num_envs / num_minibatches envs"""
+    update_epochs: int = 4
+    """passes over each rollout"""
+    learning_rate: float = 3e-4
+    """Adam learning rate"""
+    anneal_lr: bool = True
+    """decay the learning rate linearly to 0 over the run"""
+    gamma: float = 0.99
+    """discount"""
+    gae_lambda: float = 0.95
+    """λ of generalised advantage estimation"""
+    clip_coef: float = 0.2
+    """PPO's clipping of the probability ratio"""
+    ent_coef: float = 0.001
+    """weight of the entropy bonus"""
+    vf_coef: float = 0.5
+    """weight of the value loss"""
+    max_grad_norm: float = 0.5
+    """gradient clipping"""
+    hidden_units: int = 64
+    """units of the encoder and the GRU"""
+    shaping: str = "log_fraction_centred"
+    """the learner's reward (agents.dqn.LearnerReward): the potential Φ (none, fraction, log_fraction,
+    log_fraction_centred)"""
+    shaping_scale: float = 5.0
+    """Φ is multiplied by this"""
+    success_bonus: float = 1.0
+    """added at the first success of an episode"""
+    hold_reward: float = 0.2
+    """added at every later step in success"""
+    step_cost: float = 0.02
+    """subtracted at every step"""
+    refusal_penalty: float = 0.1
+    """subtracted at a refused step"""
+    stay_penalty: float = 0.0
+    """subtracted at a `stay` out of success (env.stay_action)"""
+    demo_episodes: int = 30
+    """episodes per env of the scripted servo whose actions the agent imitates before PPO (behaviour cloning,
+    its value fit to their returns; their env steps count in total_steps); 0: PPO from scratch"""
+    demo_epochs: int = 300
+    """passes of behaviour cloning over the servo's episodes"""
+    demo_learning_rate: float = 1e-3
+    """Adam learning rate of the behaviour cloning"""
+    demo_coef: float = 1.0
+    """weight in PPO's loss of the cross-entropy against the servo's action in the agent's own states (DAgger's
+    labels), at the start of PPO; it goes linearly to demo_coef_end over the run (both 0: off)"""
+    demo_coef_end: float = 0.0
+    """that weight at the end of the run (demo_coef: constant)"""
+    run_dir: str = "runs/search"
+    """where the checkpoint and history go (a folder per run is made inside)"""
+    run_name: str = ""
+    """the run's folder name (default: seed<k>)"""
+    track: bool = False
+    """also write the training scalars to TensorBoard in the run's folder (the optional extra `track`)"""
+
+
+def check(args: Args):
+    """Bad options fail before any worker starts, naming the value and the valid ones."""
+    if not args.env.with_ee_pos:
+        raise ValueError("the memory agent needs the camera's commanded position: env.with_ee_pos must be True")
+    if args.env.box_source not in ("ground_truth", "fcn"):
+        raise ValueError(f"env.box_source={args.env.box_source!r} is not one of: ground_truth, fcn")
+    if args.demo_episodes and args.env.terminate_on_success:
+        raise ValueError(
+            "demo_episodes cuts the servo's play into whole episodes of max_episode_steps: it needs "
+            "env.terminate_on_success off"
+        )
+    if args.shaping not in SHAPINGS:
+        raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
+    if args.num_envs < 1 or args.num_envs % args.num_minibatches:
+        raise ValueError(
+            f"num_envs={args.num_envs} must be a positive multiple of num_minibatches={args.num_minibatches}"
+        )
+    demo_steps = args.demo_episodes * args.env.max_episode_steps * args.num_envs
+    if args.total_steps < demo_steps + args.num_envs * args.num_steps:
+        raise ValueError(
+            f"total_steps={args.total_steps} is less than the servo's episodes and one rollout "
+            f"({demo_steps} + num_envs * num_steps = {args.num_envs * args.num_steps})"
+        )
+
+
+@dataclass
+class Rollout:
+    """One rollout, (T, N) per env and step: the network's inputs `x`, `starts` (the observation is an
+    episode's first: the GRU's state is zeroed before it), the actions taken, their log-probabilities and
+    values, the learner's rewards, `ended` (the episode ended with this step's action), the servo's action
+    in the same state (`expert`), and the GRU's state before the rollout's first step."""
+
+    x: torch.Tensor
+    starts: torch.Tensor
+    actions: torch.Tensor
+    logprobs: torch.Tensor
+    values: torch.Tensor
+    rewards: torch.Tensor
+    ended: torch.Tensor
+    expert: torch.Tensor
+    first_state: torch.Tensor | None = None
+
+    @classmethod
+    def empty(cls, steps: int, num_envs: int, input_dim: int) -> Rollout:
+        zeros = functools.partial(torch.zeros, steps, num_envs)
+        long = functools.partial(zeros, dtype=torch.long)
+        return cls(zeros(input_dim), zeros(), long(), zeros(), zeros(), zeros(), zeros(), long())
+
+
+def gae(rewards, values, ended, next_value, gamma: float, lam: float) -> torch.Tensor:
+    """Generalised advantages (T, N); `ended[t]` marks an episode that ended with step t's action (its
+    successor is the next episode's first state, not to be bootstrapped from)."""
+    advantages = torch.zeros_like(rewards)
+    last = torch.zeros_like(next_value)
+    for t in reversed(range(rewards.shape[0])):
+        following = next_value if t == rewards.shape[0] - 1 else values[t + 1]
+        carry = 1.0 - ended[t]
+        delta = rewards[t] + gamma * following * carry - values[t]
+        last = delta + gamma * lam * carry * last
+        advantages[t] = last
+    return advantages
+
+
+TRACKED = ("return", "learner_return", "success", "success_final", "focus_held", "steps_to_see")
+
+
+class Collector:
+    """The vector env and what the learner keeps of it between steps: the latest observation and info, each
+    env's previous action and whether its next observation is an episode's first, the learner's reward and
+    the episode's trajectory; a finished episode's metrics go to `history` (with the env step it ended at)."""
+
+    def __init__(self, env, args: Args, writer=None):
+        self.env, self.args, self.writer, self.n = env, args, writer, env.num_envs
+        self.actions = num_actions(env)
+        self.obs, self.info = env.reset(seed=[args.seed * TRAIN_SEED_STRIDE + i for i in range(self.n)])
+        self.learner_rewards = [LearnerReward(args, args.env.success_fraction) for _ in range(self.n)]
+        self.trajectories = [Trajectory() for _ in range(self.n)]
+        self.learner_return = np.zeros(self.n)
+        for i in range(self.n):
+            self._start(i)
+        self.last_action = np.full(self.n, -1)
+        self.starts = torch.ones(self.n)  # the next observation is an episode's first
+        self.history, self.global_step = [], 0
+
+    def _start(self, i: int):
+        self.learner_return[i] = 0.0
+        self.learner_rewards[i].reset(env_info(self.info, i))
+        self.trajectories[i].start(env_info(self.info, i))
+
+    def features(self) -> torch.Tensor:
+        return torch.as_tensor(features(box_array(self.obs), self.last_action, self.actions))
+
+    def step(self, action: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """Step every env; returns the learner's rewards (N,) and which episodes ended with this step (N,)."""
+        self.obs, reward, terminated, truncated, self.info = self.env.step(action)
+        _, final_info = last_step(self.obs, self.info)  # the finished episodes' last step (same-step reset)
+        done = np.asarray(terminated) | np.asarray(truncated)
+        self.global_step += self.n
+        learned = torch.zeros(self.n)
+        for i in range(self.n):
+            view = env_info(final_info, i)
+            learned[i] = self.learner_rewards[i](reward[i : i + 1], view, stayed=action[i] == STAY_INDEX)
+            self.learner_return[i] += float(learned[i])
+            self.trajectories[i].append(reward[i : i + 1], view)
+            if done[i]:
+                entry = {"env_step": self.global_step, "learner_return": self.learner_return[i]}
+                self.history.append({**entry, **episode_metrics(self.trajectories[i])})
+                if self.writer is not None:
+                    for key in TRACKED:
+                        if not math.isnan(self.history[-1][key]):
+                            self.writer.add_scalar(f"charts/{key}", self.history[-1][key], self.global_step)
+                self._start(i)  # info is already the next episode's first
+        self.last_action = np.where(done, -1, action)
+        self.starts = torch.as_tensor(done, dtype=torch.float32)
+        return learned, self.starts.clone()
+
+
+def imitate_servo(agent: RecurrentActorCritic, collector: Collector, args: Args, bar) -> dict:
+    """Behaviour cloning before PPO: the scripted servo (sweep, centre, approach; acting on the training box)
+    plays `demo_episodes` episodes per env; the agent's policy is fit to its actions (cross-entropy, through
+    the GRU) and its value head, on the GRU's features held fixed, to the learner's discounted returns, over
+    whole episodes for `demo_epochs` epochs (Adam at `demo_learning_rate`). Returns the losses of the first
+    and the last epoch."""
+    servo = ServoPolicy(collector.env)
+    steps, n = args.env.max_episode_steps, collector.n
+    demo = Rollout.empty(args.demo_episodes * steps, n, agent.input_dim)
+    for t in range(args.demo_episodes * steps):
+        demo.x[t], demo.starts[t] = collector.features(), collector.starts
+        servo.sweep.direction[collector.starts.numpy().astype(bool)] = servo.sweep.first  # a new episode's sweep
+        action = servo.act(collector.obs, collector.info)
+        demo.actions[t] = torch.as_tensor(action)
+        demo.rewards[t], demo.ended[t] = collector.step(action)
+        bar.update(n)
+    returns = gae(demo.rewards, torch.zeros_like(demo.rewards), demo.ended, torch.zeros(n), args.gamma, 1.0)
+
+    def by_episode(values: torch.Tensor) -> torch.Tensor:  # (episodes * T, N, ...) -> (T, episodes * N, ...)
+        return values.unflatten(0, (args.demo_episodes, steps)).transpose(0, 1).flatten(1, 2)
+
+    x, actions, returns, starts = (
+        by_episode(demo.x),
+        by_episode(demo.actions),
+        by_episode(returns),
+        by_episode(demo.starts),
+    )
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.demo_learning_rate)
+    losses = []
+    for _ in range(args.demo_epochs):
+        hidden, _ = agent.memory(x, agent.initial_state(x.shape[1]), starts)
+        policy_loss = F.cross_entropy(agent.actor(hidden).flatten(0, 1), actions.flatten())
+        value_loss = 0.5 * (agent.value(hidden) - returns).pow(2).mean()
+        optimizer.zero_grad()
+        (policy_loss + value_loss).backward()
+        nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        optimizer.step()
+        losses.append({"demo_policy_loss": policy_loss.item(), "demo_value_loss": value_loss.item()})
+    return {"first_epoch": losses[0], "last_epoch": losses[-1]}
+
+
+def train(args: Args, progress: bool = True) -> dict:
+    """Train one agent; returns {"run_dir", "checkpoint", "history" (one dict per finished episode)}."""
+    check(args)
+    run_dir = os.path.join(args.run_dir, args.run_name or f"seed{args.seed}")
+    os.makedirs(run_dir, exist_ok=True)
+    writer = tensorboard_writer(run_dir) if args.track else None
+    torch.set_num_threads(1)
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    n, steps = args.num_envs, args.num_steps
+    env = make_vec_env(args.env, n, backend="cpu")  # worker processes
+    actions = num_actions(env)
+    agent = RecurrentActorCritic(input_dim(actions), actions, args.hidden_units)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
+    collector = Collector(env, args, writer)
+    rollout = Rollout.empty(steps, n, agent.input_dim)
+    state = agent.initial_state(n)
+    demo_steps = args.demo_episodes * args.env.max_episode_steps * n
+    updates = (args.total_steps - demo_steps) // (n * steps)
+    servo = ServoPolicy(env)  # asked what it would do in the agent's own states (DAgger's expert)
+    losses, demo_losses, demo_done, start = {}, {}, 0, time.time()
+    bar = tqdm(total=demo_steps + updates * n * steps, desc=f"search {os.path.basename(run_dir)}", disable=not progress)
+    try:
+        with stop_on_ctrl_c() as stop_requested:
+            if args.demo_episodes:
+                demo_losses = imitate_servo(agent, collector, args, bar)
+                demo_done = len(collector.history)
+                bar.write(f"behaviour cloning: {demo_losses}")
+            for update in range(updates):
+                if stop_requested():
+                    raise KeyboardInterrupt(
+                        f"stopped by Ctrl-C after {update} updates ({collector.global_step} env steps)"
+                    )
+                if args.anneal_lr:
+                    optimizer.param_groups[0]["lr"] = args.learning_rate * (1.0 - update / updates)
+                progress_made = update / updates  # the imitation's weight goes linearly to demo_coef_end
+                demo_weight = args.demo_coef + (args.demo_coef_end - args.demo_coef) * progress_made
+                rollout.first_state = state.clone()
+                for t in range(steps):
+                    rollout.x[t], rollout.starts[t] = collector.features(), collector.starts
+                    servo.sweep.direction[collector.starts.numpy().astype(bool)] = servo.sweep.first
+                    rollout.expert[t] = torch.as_tensor(servo.act(collector.obs, collector.info))
+                    with torch.no_grad():
+                        logits, value, state = agent(rollout.x[t : t + 1], state, rollout.starts[t : t + 1])
+                    distribution = torch.distributions.Categorical(logits=logits[0])
+                    action = distribution.sample()
+                    rollout.actions[t], rollout.logprobs[t] = action, distribution.log_prob(action)
+                    rollout.values[t] = value[0]
+                    rollout.rewards[t], rollout.ended[t] = collector.step(action.numpy())
+                    bar.update(n)
+                with torch.no_grad():  # the value of the state after the rollout, to bootstrap from
+                    next_value = agent(collector.features()[None], state, collector.starts[None])[1][0]
+                losses = ppo_update(agent, optimizer, args, rollout, next_value, demo_weight)
+                if writer is not None:
+                    for key, value in losses.items():
+                        writer.add_scalar(f"losses/{key}", value, collector.global_step)
+                recent = collector.history[-20:]
+                bar.set_postfix(
+                    success=f"{np.mean([h['success'] for h in recent]):.2f}",
+                    at_end=f"{np.mean([h['success_final'] for h in recent]):.2f}",
+                    ret=f"{np.mean([h['learner_return'] for h in recent]):.1f}",
+                )
+    finally:
+        bar.close()
+        env.close()
+        if writer is not None:
+            writer.close()
+        checkpoint = os.path.join(run_dir, "agent.pt")  # also after Ctrl-C: what was learned so far
+        save_agent(checkpoint, agent, args)
+        save_json(
+            {
+                "config": dataclasses.asdict(args),
+                "seconds": time.time() - start,
+                "env_steps": collector.global_step,
+                "demo_env_steps": demo_steps,
+                "complete": collector.global_step == demo_steps + updates * n * steps,
+                "losses": losses,
+                "demo_losses": demo_losses,
+                "history": [{**h, "demo": k < demo_done} for k, h in enumerate(collector.history)],
+            },
+            os.path.join(run_dir, "history.json"),
+        )
+    return {"run_dir": run_dir, "checkpoint": checkpoint, "history": collector.history}
+
+
+def ppo_update(
+    agent: RecurrentActorCritic,
+    optimizer,
+    args: Args,
+    rollout: Rollout,
+    next_value: torch.Tensor,
+    demo_weight: float = 0.0,
+) -> dict:
+    """PPO's epochs over one rollout; each minibatch is the whole sequences of some envs, replayed through the
+    GRU from the rollout's first state with the rollout's resets. `demo_weight` times the cross-entropy of
+    the policy against the servo's action in the same states (DAgger's expert labels on the agent's own
+    rollout) joins the loss, so that the policy keeps close to the servo where the return does not pull it
+    away. Returns the last minibatch's losses."""
+    advantages = gae(rollout.rewards, rollout.values, rollout.ended, next_value, args.gamma, args.gae_lambda)
+    returns = advantages + rollout.values
+    n = rollout.x.shape[1]
+    per_batch = n // args.num_minibatches
+    for _ in range(args.update_epochs):
+        order = torch.randperm(n)
+        for first in range(0, n, per_batch):
+            envs = order[first : first + per_batch]
+            logits, new_values, _ = agent(rollout.x[:, envs], rollout.first_state[:, envs], rollout.starts[:, envs])
+            distribution = torch.distributions.Categorical(logits=logits)
+            new_logprobs = distribution.log_prob(rollout.actions[:, envs])
+            ratio = (new_logprobs - rollout.logprobs[:, envs]).exp()
+            advantage = advantages[:, envs]
+            advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+            policy_loss = torch.max(
+                -advantage * ratio, -advantage * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)
+            ).mean()
+            value_loss = 0.5 * (new_values - returns[:, envs]).pow(2).mean()
+            entropy = distribution.entropy().mean()
+            loss = policy_loss - args.ent_coef * entropy + args.vf_coef * value_loss
+            demo_loss = F.cross_entropy(logits.flatten(0, 1), rollout.expert[:, envs].flatten())
+            loss = loss + demo_weight * demo_loss
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            optimizer.step()
+    return {
+        "policy_loss": policy_loss.item(),
+        "value_loss": value_loss.item(),
+        "entropy": entropy.item(),
+        "demo_loss": demo_loss.item(),
+    }
+
+
+if __name__ == "__main__":
+    result = train(tyro.cli(Args))
+    print(f"checkpoint: {result['checkpoint']}")

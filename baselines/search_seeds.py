@@ -1,0 +1,334 @@
+"""The memory agent (`agents.search`) over several training seeds, each evaluated with the project's protocol
+(held-out seeds from 1,000,000, unseen objects, the FCN's box and the ground-truth box) beside the scripted
+exploration + the shipped DQN, the scripted servo and the DQN without exploration on the same episodes; a
+table per seed with mean ± std and the worst seed, the learning curves (success vs env steps) and the
+camera's azimuth vs step beside the scripted sweep (docs/search.md).
+
+    python baselines/search_seeds.py --seeds 0 1 2 --total-steps 50000
+    python baselines/search_seeds.py --report-only             # the table and figures from what is finished
+
+Runs are kept under `out_dir/seed<k>` and skipped when finished (a run stopped by Ctrl-C is trained again);
+each evaluation is cached in a JSON file, so a stopped run resumes where it was. The reference's steps
+(for SPL) are measured once per box.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import tyro  # noqa: E402
+
+from mani_active_vision.agents import search  # noqa: E402
+from mani_active_vision.agents.policies import box_array, make_policy  # noqa: E402
+from mani_active_vision.agents.q_network import checkpoint_env_config  # noqa: E402
+from mani_active_vision.envs import EnvConfig, make_env  # noqa: E402
+from mani_active_vision.evaluation.protocol import eval_seeds, evaluate, reference_table  # noqa: E402
+from mani_active_vision.evaluation.report import spread  # noqa: E402
+from mani_active_vision.evaluation.rollout import run_episode  # noqa: E402
+from mani_active_vision.json_io import save_json  # noqa: E402
+from mani_active_vision.metrics import summarize  # noqa: E402
+
+COLUMNS = ("success", "success_final", "focus_held", "spl", "steps_to_see", "steps_to_success")
+BOXES = ("fcn", "ground_truth")
+
+
+@dataclass
+class Args:
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    """training seeds"""
+    total_steps: int = 50_000
+    """env steps per training run"""
+    train: search.Args = field(default_factory=search.Args)
+    """the learner's options (seed, total steps and folder are this script's)"""
+    eval_episodes: int = 50
+    """evaluation episodes per agent (seeds from 1,000,000, the same for every agent)"""
+    eval_object_set: str = "unseen"
+    """objects of the evaluation episodes"""
+    boxes: list[str] = field(default_factory=lambda: list(BOXES))
+    """the boxes the agents are evaluated on: fcn (as deployed) and ground_truth (the reference column)"""
+    dqn_checkpoint: str = "agents/weights/dqn.pt"
+    """the DQN of the baselines (explore -> dqn, and dqn without exploration)"""
+    out_dir: str = "runs/search_seeds"
+    """where runs, evaluations and the table go"""
+    figures_dir: str = "docs/figures"
+    """where the learning curve and the azimuth plot go"""
+    path_seed: int = 0
+    """the training seed whose agent's camera path is plotted"""
+    path_episodes: int = 4
+    """evaluation episodes in the azimuth plot"""
+    report_only: bool = False
+    """only make the table and figures from finished runs and evaluations"""
+
+
+def read_json(path: str):
+    with open(path) as f:
+        return json.load(f)
+
+
+def cached(path: str, compute):
+    """`compute()`, saved at `path`, or what was saved there."""
+    if os.path.exists(path):
+        return read_json(path)
+    value = compute()
+    save_json(value, path)
+    return value
+
+
+def seed_dir(args: Args, seed: int) -> str:
+    return os.path.join(args.out_dir, f"seed{seed}")
+
+
+def train_seed(args: Args, seed: int):
+    history = os.path.join(seed_dir(args, seed), "history.json")
+    if os.path.exists(history) and read_json(history)["complete"]:
+        return
+    options = dataclasses.replace(
+        args.train, seed=seed, total_steps=args.total_steps, run_dir=args.out_dir, run_name=f"seed{seed}"
+    )
+    search.train(options)
+
+
+def eval_config(base: EnvConfig, args: Args, box: str) -> EnvConfig:
+    return base.replace(object_set=args.eval_object_set, box_source=box)
+
+
+def references(args: Args, box: str) -> dict[int, float]:
+    """The privileged servo's steps per evaluation seed on this box (cached; NaN where it fails)."""
+
+    def compute():
+        env = make_env(eval_config(EnvConfig(), args, box))
+        try:
+            return reference_table(env, eval_seeds(args.eval_episodes))
+        finally:
+            env.close()
+
+    value = cached(os.path.join(args.out_dir, f"reference_{box}_{args.eval_episodes}.json"), compute)
+    return {int(k): math.nan if v is None else v for k, v in value.items()}
+
+
+def evaluate_cached(args: Args, path: str, config: EnvConfig, name: str, box: str, **kwargs) -> dict:
+    """The summary and episodes of a policy on the evaluation episodes, cached at `path`."""
+
+    def compute():
+        env = make_env(config)
+        try:
+            policy = make_policy(name, env, **kwargs)
+            episodes = evaluate(
+                env, policy, eval_seeds(args.eval_episodes), references=references(args, box), desc=path
+            )
+        finally:
+            env.close()
+        return {"env": dataclasses.asdict(config), "summary": summarize(episodes), "episodes": episodes}
+
+    return cached(path, compute)
+
+
+def baselines(args: Args, box: str) -> dict[str, dict]:
+    """The baselines' evaluations on this box: explore -> dqn (as shipped), servo, dqn without exploration."""
+    dqn_env = eval_config(checkpoint_env_config(args.dqn_checkpoint), args, box)
+    suffix = f"{box}_{args.eval_episodes}.json"
+    out = {}
+    for label, name, kwargs in (
+        ("explore → dqn (shipped dqn.pt)", "explore", dict(then="dqn", checkpoint=args.dqn_checkpoint)),
+        ("servo (scripted)", "servo", {}),
+        ("dqn without exploration (dqn.pt)", "dqn", dict(checkpoint=args.dqn_checkpoint)),
+    ):
+        path = os.path.join(args.out_dir, f"baseline_{name}_{suffix}")
+        config = dqn_env if name != "servo" else eval_config(EnvConfig(), args, box)
+        if args.report_only and not os.path.exists(path):
+            continue
+        out[label] = evaluate_cached(args, path, config, name, box, **kwargs)
+    return out
+
+
+def memory_path(args: Args, seed: int, box: str) -> str:
+    return os.path.join(seed_dir(args, seed), f"eval_{box}_{args.eval_episodes}.json")
+
+
+def evaluate_seed(args: Args, seed: int, box: str) -> dict:
+    checkpoint = os.path.join(seed_dir(args, seed), "agent.pt")
+    config = eval_config(checkpoint_env_config(checkpoint), args, box)
+    return evaluate_cached(args, memory_path(args, seed, box), config, "memory", box, checkpoint=checkpoint)
+
+
+def seen_share(episodes: list[dict]) -> float:
+    """The share of episodes in which the target was ever in view (steps to see is the mean over those)."""
+    return float(np.mean([e["steps_to_see"] is not None for e in episodes]))
+
+
+def cells(result: dict) -> str:
+    summary = result["summary"]
+    return f"{seen_share(result['episodes']):.2f} | " + " | ".join(
+        "–"
+        if summary[k] is None or math.isnan(summary[k])
+        else f"{summary[k]:.1f}"
+        if k.startswith("steps")
+        else f"{summary[k]:.2f}"
+        for k in COLUMNS
+    )
+
+
+def table(args: Args, box: str) -> str:
+    header = (
+        "| agent | training s | env steps | saw the target | success | success at end | focus held | SPL "
+        "| steps to see | steps to success |"
+    )
+    lines = [header, "|" + "---|" * 10]
+    results = []
+    for seed in args.seeds:
+        path = memory_path(args, seed, box)
+        if not os.path.exists(path):
+            continue
+        history = read_json(os.path.join(seed_dir(args, seed), "history.json"))
+        result = read_json(path)
+        results.append(result)
+        lines.append(f"| memory seed {seed} | {history['seconds']:.0f} | {history['env_steps']} | {cells(result)} |")
+    if results:
+        summaries = [r["summary"] for r in results]
+        means = " | ".join(spread([s[k] for s in summaries], 1 if k.startswith("steps") else 2) for k in COLUMNS)
+        seen = spread([seen_share(r["episodes"]) for r in results])
+        lines.append(f"| **memory: mean ± std over {len(results)} seeds** | | | {seen} | {means} |")
+        worst = min(results, key=lambda r: r["summary"]["success"])
+        lines.append(f"| memory: worst seed (by success) | | | {cells(worst)} |")
+    for label, result in baselines(args, box).items():
+        lines.append(f"| {label} | | | {cells(result)} |")
+    return "\n".join(lines)
+
+
+def plot_learning_curves(args: Args, path: str, bin_steps: int = 5_000):
+    """Training success and success at the end (sampled actions) vs env steps, in bins of `bin_steps`:
+    mean ± std over the seeds."""
+    histories = [
+        read_json(os.path.join(seed_dir(args, s), "history.json"))["history"]
+        for s in args.seeds
+        if os.path.exists(os.path.join(seed_dir(args, s), "history.json"))
+    ]
+    if not histories:
+        return
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key, label in (("success", "success"), ("success_final", "success at the end")):
+        last = min(max(h["env_step"] for h in history) for history in histories)
+        edges = np.arange(0, last + 1, bin_steps)
+        curves = []
+        for history in histories:
+            steps = np.array([h["env_step"] for h in history])
+            values = np.array([h[key] for h in history])
+            curves.append([values[(steps > a) & (steps <= a + bin_steps)].mean() for a in edges[:-1]])
+        curves = np.array(curves)
+        mean, std = curves.mean(0), curves.std(0)
+        x = edges[1:]
+        ax.plot(x, mean, label=f"{label} ({len(histories)} seeds)")
+        ax.fill_between(x, mean - std, mean + std, alpha=0.25)
+    demo_steps = read_json(os.path.join(seed_dir(args, args.seeds[0]), "history.json")).get("demo_env_steps", 0)
+    if demo_steps:
+        ax.axvline(demo_steps, color="grey", linestyle="--", linewidth=1)
+        ax.text(demo_steps, 0.95, " PPO from here (before: the servo's episodes, cloned)", fontsize=7, color="grey")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel(f"training episodes' share ({bin_steps:,}-step bins)")
+    ax.set_title("memory agent (recurrent PPO), ground-truth box, train objects")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def camera_paths(config: EnvConfig, name: str, seeds, **kwargs) -> list[dict]:
+    """The commanded azimuth (degrees) at every step of episodes of a policy, and its first success step."""
+    env = make_env(config.replace(with_ee_pos=True))  # the commanded position comes with the box
+    paths = []
+    try:
+        policy = make_policy(name, env, **kwargs)
+        for seed in seeds:
+            azimuth = []
+
+            def log_azimuth(obs, info, azimuth=azimuth):
+                x, y = box_array(obs)[0, 4:6]  # the commanded position follows the box
+                azimuth.append(math.degrees(math.atan2(float(y), float(x))))
+
+            trajectory = run_episode(env, policy, seed, on_step=log_azimuth)
+            success = trajectory.success.index(True) if True in trajectory.success else None
+            paths.append({"seed": seed, "azimuth": azimuth, "first_success": success})
+    finally:
+        env.close()
+    return paths
+
+
+def plot_paths(args: Args, path: str):
+    """Azimuth vs step of the memory agent (FCN box) and the scripted sweep on the same episodes."""
+    checkpoint = os.path.join(seed_dir(args, args.path_seed), "agent.pt")
+    if not os.path.exists(checkpoint):
+        return
+    seeds = list(eval_seeds(args.path_episodes))
+    memory_env = eval_config(checkpoint_env_config(checkpoint), args, "fcn")
+    runs = cached(
+        os.path.join(args.out_dir, f"paths_seed{args.path_seed}_{args.path_episodes}.json"),
+        lambda: {
+            "memory": camera_paths(memory_env, "memory", seeds, checkpoint=checkpoint),
+            "explore": camera_paths(eval_config(EnvConfig(), args, "fcn"), "explore", seeds),
+        },
+    )
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    for ax, (key, title) in zip(
+        axes, (("memory", f"memory agent (seed {args.path_seed}), FCN box"), ("explore", "scripted sweep (explore)"))
+    ):
+        for run in runs[key]:
+            line = ax.plot(run["azimuth"], label=f"episode {run['seed']}")[0]
+            if run["first_success"] is not None:
+                s = run["first_success"]
+                ax.plot(s, run["azimuth"][s], "o", color=line.get_color())
+        ax.set_title(title)
+        ax.set_xlabel("step")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("commanded azimuth (degrees)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("where the camera looks (the sweep is the same every episode): dots = first success", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    for box in args.boxes:
+        if box not in BOXES:
+            raise ValueError(f"box {box!r} is not one of: {', '.join(BOXES)}")
+    if not args.report_only:
+        for seed in args.seeds:
+            train_seed(args, seed)
+        for box in args.boxes:
+            for seed in args.seeds:
+                evaluate_seed(args, seed, box)
+            baselines(args, box)
+    os.makedirs(args.figures_dir, exist_ok=True)
+    text = []
+    for box in args.boxes:
+        text.append(f"### {box} box\n\n{table(args, box)}\n")
+    note = (
+        f"({args.eval_episodes} evaluation episodes per agent from seed 1,000,000, {args.eval_object_set} objects; "
+        "saw the target: the share of episodes in which it was ever in view; focus held and steps over the episodes "
+        "where they exist; memory agents greedy)\n"
+    )
+    with open(os.path.join(args.out_dir, "table.md"), "w") as f:
+        f.write("\n".join(text) + "\n" + note)
+    print("\n".join(text) + "\n" + note)
+    plot_learning_curves(args, os.path.join(args.figures_dir, "search_learning_curve.png"), bin_steps=5_000)
+    if not args.report_only or os.path.exists(
+        os.path.join(args.out_dir, f"paths_seed{args.path_seed}_{args.path_episodes}.json")
+    ):
+        plot_paths(args, os.path.join(args.figures_dir, "search_azimuth.png"))
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

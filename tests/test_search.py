@@ -1,0 +1,134 @@
+"""The memory agent: its recurrent state's resets, GAE, a short training run on worker processes, its checkpoint
+and the `memory` policy."""
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+import mani_active_vision as mav
+from mani_active_vision.agents import search
+from mani_active_vision.agents.policies import MemoryPolicy, box_array, make_policy, policy_kwargs
+from mani_active_vision.agents.q_network import checkpoint_env_config
+from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim
+from mani_active_vision.envs import EnvConfig
+from mani_active_vision.evaluation.protocol import evaluate
+
+SHORT = EnvConfig(with_ee_pos=True, max_episode_steps=12)  # short episodes: the same code, less time
+
+
+def test_the_gru_state_is_zeroed_where_an_episode_starts():
+    torch.manual_seed(0)
+    agent = RecurrentActorCritic(input_dim(6), 6, hidden_units=16)
+    x = torch.randn(7, 2, agent.input_dim)
+    starts = torch.zeros(7, 2)
+    starts[4, 0] = 1.0  # env 0's second episode starts at step 4
+    state = torch.randn(1, 2, 16)  # whatever the state before: it must not reach past the reset
+    hidden, _ = agent.memory(x, state, starts)
+    alone, _ = agent.memory(x[4:, :1], agent.initial_state(1), torch.zeros(3, 1))
+    torch.testing.assert_close(hidden[4:, :1], alone)
+    carried, _ = agent.memory(x[4:, 1:], hidden[3:4, 1:], torch.zeros(3, 1))  # a 1-layer GRU: output = state
+    torch.testing.assert_close(hidden[4:, 1:], carried)  # env 1 carries its state across the same steps
+    assert not torch.allclose(hidden[4:, 1:], agent.memory(x[4:, 1:], agent.initial_state(1), torch.zeros(3, 1))[0])
+
+
+def test_gae_does_not_bootstrap_across_an_episode_end():
+    rewards, values = torch.tensor([[1.0], [0.0], [2.0]]), torch.tensor([[0.5], [0.5], [0.5]])
+    ended = torch.tensor([[0.0], [1.0], [0.0]])
+    advantages = search.gae(rewards, values, ended, torch.tensor([3.0]), gamma=0.9, lam=1.0)
+    # step 1 ends its episode: its return is its reward; step 0's is 1 + 0.9 * 0; step 2 bootstraps from 3
+    torch.testing.assert_close(advantages[:, 0], torch.tensor([1.0 - 0.5, 0.0 - 0.5, 2.0 + 0.9 * 3.0 - 0.5]))
+
+
+def test_features_are_the_box_the_camera_position_and_the_last_action():
+    box_state = np.array([[0.1, 0.2, 0.3, 0.4, 0.0, 0.5, 0.9]], np.float32)  # camera at azimuth 90°, radius 0.5
+    x = features(box_state, np.array([2]), 6)
+    np.testing.assert_allclose(x[0, :8], [0.1, 0.2, 0.3, 0.4, 1.0, 0.0, 0.5, 0.9], atol=1e-6)
+    assert x[0, 8:].tolist() == [0, 0, 1, 0, 0, 0]
+    assert features(box_state, np.array([-1]), 6)[0, 8:].sum() == 0  # an episode's start: no previous action
+    with pytest.raises(ValueError, match="with_ee_pos=True"):
+        features(box_state[:, :4], np.array([-1]), 6)
+
+
+def test_the_policy_resets_its_memory_at_an_episode_start():
+    env = mav.make_env(SHORT)
+    try:
+        torch.manual_seed(0)
+        agent = RecurrentActorCritic(input_dim(6), 6, hidden_units=16)
+        policy, fresh = MemoryPolicy(env, agent=agent), MemoryPolicy(env, agent=agent)
+        obs, info = env.reset(seed=5)
+        policy.reset(obs, info)
+        for _ in range(4):
+            obs, _, _, _, info = env.step(policy.act(obs, info))
+        assert policy.state.abs().sum() > 0 and policy.last_action[0] >= 0  # carried across steps
+        obs, info = env.reset(seed=6)
+        remembered = policy.state.clone()
+        fresh.reset(obs, info)
+        fresh.act(obs, info)
+        policy.reset(obs, info)
+        assert policy.state.abs().sum() == 0 and policy.last_action[0] == -1
+        policy.act(obs, info)
+        torch.testing.assert_close(policy.state, fresh.state)  # as if it had never acted before
+        assert not torch.allclose(
+            agent(torch.as_tensor(features(box_array(obs), np.array([-1]), 6))[None], remembered, torch.zeros(1, 1))[2],
+            fresh.state,
+        )  # without the reset its memory would differ
+    finally:
+        env.close()
+
+
+def test_a_short_training_run_on_workers_saves_an_agent_that_acts(tmp_path):
+    args = search.Args(env=SHORT, total_steps=48, num_steps=12, demo_episodes=1, demo_epochs=2, run_dir=str(tmp_path))
+    result = search.train(args, progress=False)  # 2 worker processes: one servo episode each, then one PPO update
+    assert len(result["history"]) == 4 and [h["env_step"] for h in result["history"]] == [24, 24, 48, 48]
+    saved_history = json.loads((tmp_path / "seed0" / "history.json").read_text())
+    assert [h["demo"] for h in saved_history["history"]] == [True, True, False, False] and saved_history["complete"]
+    saved = torch.load(result["checkpoint"], weights_only=True)  # weights and plain data only
+    assert EnvConfig.from_dict(saved["config"]["env"]) == SHORT == checkpoint_env_config(result["checkpoint"])
+    assert not torch.equal(saved["state_dict"]["actor.weight"], torch.zeros(6, 64))
+    env = mav.make_env(checkpoint_env_config(result["checkpoint"]))
+    try:
+        policy = make_policy("memory", env, **policy_kwargs("memory", checkpoint=result["checkpoint"]))
+        episode = evaluate(env, policy, [1_000_000], with_reference=False, progress=False)[0]
+    finally:
+        env.close()
+    assert 0 <= episode["final_target_fraction"] <= 1 and policy.last_action[0] in range(6)
+
+
+def test_bad_options_are_named_with_the_valid_ones(tmp_path):
+    with pytest.raises(ValueError, match="with_ee_pos must be True"):
+        search.check(search.Args(env=EnvConfig()))
+    with pytest.raises(ValueError, match="shaping='x' is not one of: none, fraction"):
+        search.check(dataclasses.replace(search.Args(), shaping="x"))
+    with pytest.raises(ValueError, match="num_envs=3 must be a positive multiple of num_minibatches=2"):
+        search.check(dataclasses.replace(search.Args(), num_envs=3))
+    with pytest.raises(ValueError, match="total_steps=1000 is less than the servo's episodes and one rollout"):
+        search.check(dataclasses.replace(search.Args(), total_steps=1000))
+    with pytest.raises(ValueError, match="needs a checkpoint"):
+        policy_kwargs("memory")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        make_policy("memory", None, checkpoint=str(tmp_path / "missing.pt"))
+    env = mav.make_env(EnvConfig(max_episode_steps=5))  # the box alone: no camera position
+    try:
+        with pytest.raises(ValueError, match="with_ee_pos=True"):
+            MemoryPolicy(env, agent=RecurrentActorCritic(input_dim(6), 6, 8))
+    finally:
+        env.close()
+
+
+def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", "weights", "search.pt")
+    config = torch.load(path, weights_only=True)["config"]
+    deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+    assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
+    assert deployed == trained.replace(box_source="fcn", object_set="unseen")
+    env = mav.make_env(deployed.replace(max_episode_steps=10))
+    try:
+        policy = make_policy("memory", env, checkpoint=path)
+        evaluate(env, policy, [1_000_000], with_reference=False, progress=False)
+    finally:
+        env.close()
+    assert policy.last_action[0] in range(6)
