@@ -222,7 +222,8 @@ class ActiveVisionFindEnv(BaseEnv):
         self.ground = build_floor(self.scene)
         models = object_set(self.object_set)
         slots = [[] for _ in range(self.num_objects)]
-        copies, bottoms, hulls, self.object_names, self.object_colors = [], [], [], [], []
+        copies, bottoms, self.object_names, self.object_colors = [], [], [], []
+        self._target_models, self._target_hulls = [], None  # hulls made on the first projection
         for env in range(self.num_envs):
             rng = (
                 np.random.RandomState(self.fixed_scene_seed)
@@ -250,8 +251,7 @@ class ActiveVisionFindEnv(BaseEnv):
             self.remove_from_state_dict_registry(copy)
             copies.append(copy)
             bottoms.append(env_bottoms)
-            if self.render_free:
-                hulls.append(hull_points(chosen[0], sizes[0]))
+            self._target_models.append((chosen[0], float(sizes[0])))
             self.object_names.append([m.name for m in chosen])
             self.object_colors.append([tuple(float(c) for c in color) for color in colors])
         self.objects = [Actor.merge(actors, name=f"object_{k}") for k, actors in enumerate(slots)]
@@ -269,9 +269,6 @@ class ActiveVisionFindEnv(BaseEnv):
         self.target_copy = Actor.merge(copies, name="target_copy")
         self.add_to_state_dict_registry(self.target_copy)
         self._object_bottoms = torch.tensor(bottoms, dtype=torch.float32, device=self.device)
-        if self.render_free:  # envs' hulls padded to one length by repeating a point
-            most = max(len(h) for h in hulls)
-            self._target_hulls = np.stack([np.concatenate([h, np.repeat(h[-1:], most - len(h), 0)]) for h in hulls])
         self._target_image = torch.zeros(
             (self.num_envs, self.target_image_size, self.target_image_size, 3), dtype=torch.uint8, device=self.device
         )
@@ -502,6 +499,10 @@ class ActiveVisionFindEnv(BaseEnv):
                 )
             intrinsic, local_pose = self._camera_model
             target = self.target.pose.raw_pose.cpu().numpy()  # (N, 7)
+            if self._target_hulls is None:  # envs' hulls padded to one length by repeating a point
+                hulls = [hull_points(model, size) for model, size in self._target_models]
+                most = max(len(h) for h in hulls)
+                self._target_hulls = np.stack([np.concatenate([h, np.repeat(h[-1:], most - len(h), 0)]) for h in hulls])
             points = self._target_hulls @ rotation_matrix(target[:, 3:]).transpose(0, 2, 1) + target[:, None, :3]
             extrinsic = extrinsic_cv(camera.config.mount.pose.raw_pose.cpu().numpy(), local_pose)
             self._projected_mask = hull_mask(points, extrinsic, intrinsic, camera.config.width).to(self.device)

@@ -80,3 +80,15 @@ def test_the_dqn_trains_on_the_projected_box(tmp_path):
     assert len(result["history"]) == 2 and result["transitions"] > 0
     _, config = load_q_network(result["checkpoint"])
     assert config["env"]["box_source"] == "projection"
+
+
+def test_a_rendered_env_projects_too_for_measuring_the_difference():
+    env = cached_task(start_pose="search", placement="fixed")
+    env.reset(seed=3)
+    base = env.unwrapped
+    for _ in range(15):
+        env.step(torch.tensor([[0.0, 0.05, 0.0]]))  # orbit left until the fixed scene's target is in view
+    base.forget_view()
+    rendered = base._hand_camera_images()["segmentation"][..., 0] == base.target_seg_id[:, None, None]
+    projected = base.projected_target_mask()
+    assert rendered.any() and float((rendered & projected).sum() / (rendered | projected).sum()) > 0.5
