@@ -8,7 +8,6 @@ the distractor's size in the image. Tells whether "approach to verify" can undo 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -20,8 +19,7 @@ from tqdm import tqdm
 from mani_active_vision.agents.fcn import load_pretrained
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
-from mani_active_vision.robots.iiwa import CAMERA_PITCH
-from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik
+from mani_active_vision.evaluation.views import aimed_qpos
 
 SIZE_BINS = (1, 100, 400, 1600, 5000, 10**9)
 """edges of the distractor's size in pixels"""
@@ -41,18 +39,6 @@ class Args:
     """FCN checkpoint (default: the shipped agents/weights/fcn.pt)"""
 
 
-def camera_qpos(xy: np.ndarray, height: float) -> torch.Tensor | None:
-    """Joint positions that aim the camera's optical axis at floor point `xy` from `height`, or None."""
-    bounds = OrbitEEPosControllerConfig
-    radius = float(np.linalg.norm(xy)) - height / math.tan(CAMERA_PITCH)
-    azimuth = math.atan2(xy[1], xy[0])
-    pos = torch.tensor([[radius * math.cos(azimuth), radius * math.sin(azimuth), height]], dtype=torch.float32)
-    qpos, ok = solve_ik(pos, CAMERA_PITCH)
-    if not ok[0] or not bounds.min_radius <= radius <= bounds.max_radius or float(qpos[0, 3]) > bounds.max_elbow:
-        return None
-    return qpos
-
-
 def main(args: Args):
     torch.set_num_threads(1)
     model = load_pretrained(args.weights)
@@ -65,7 +51,7 @@ def main(args: Args):
             relations = slot_relations(base.object_names[0], base.object_colors[0])
             for k in np.flatnonzero(relations == RELATIONS.index("same colour")):
                 for height in args.heights:
-                    qpos = camera_qpos(base.objects[k].pose.p[0, :2].numpy(), height)
+                    qpos = aimed_qpos(base.objects[k].pose.p[0, :2].numpy(), height)
                     if qpos is None:
                         continue
                     base.agent.robot.set_qpos(qpos)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage
 import torch
+import torch.nn.functional as F
 
 
 def mask_to_box(mask: torch.Tensor) -> torch.Tensor:
@@ -67,3 +68,22 @@ def target_stats(mask: torch.Tensor) -> dict[str, torch.Tensor]:
         touches_border=border,
         center_offset=torch.where(visible, offset, torch.full_like(offset, float("inf"))),
     )
+
+
+def silhouette(mask: np.ndarray, side: int = 32) -> np.ndarray:
+    """A mask's shape alone: cropped to its box, padded to a centred square, area-resized to side² (bool).
+    Compares an object's outline in the wrist view with the target image's whatever their sizes."""
+    ys, xs = np.nonzero(mask)
+    if len(ys) == 0:
+        raise ValueError("silhouette of an empty mask")
+    crop = mask[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1].astype(np.float32)
+    h, w = crop.shape
+    n = max(h, w)
+    square = np.zeros((n, n), np.float32)
+    square[(n - h) // 2 : (n - h) // 2 + h, (n - w) // 2 : (n - w) // 2 + w] = crop
+    return F.interpolate(torch.from_numpy(square)[None, None], size=(side, side), mode="area")[0, 0].numpy() > 0.5
+
+
+def silhouette_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """IoU of two silhouettes (bool arrays of one shape)."""
+    return float((a & b).sum() / max((a | b).sum(), 1))

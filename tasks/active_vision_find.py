@@ -3,8 +3,9 @@
 **Task Description:**
 A KUKA iiwa with a wrist camera (`hand_camera`) must bring a target object into view, centred and large.
 The target is shown once per episode as a zoomed, centred image of it alone (`obs["extra"]["target_image"]`,
-non-target pixels grey). The camera's orientation follows its position (it looks outward from the robot's
-vertical axis, 60° down, horizon level), so `pd_ee_delta_pos` moves it around the robot (see
+non-target pixels grey), from the side the robot sees it (the wrist camera's elevation and line of sight).
+The camera's orientation follows its position (it looks outward from the robot's vertical axis, 60° down,
+horizon level), so `pd_ee_delta_pos` moves it around the robot (see
 `mani_active_vision.DiscreteDirections` for the paper's six discrete directions).
 
 **Randomizations:**
@@ -198,8 +199,10 @@ class ActiveVisionFindEnv(BaseEnv):
     def _default_sensor_configs(self):
         # The studio camera photographs the target's copy; it is captured once per episode, not every step.
         size = self.target_image_size
+        # From the wrist camera's elevation, looking along +x; the copy is turned so that this is the side
+        # the robot sees (`_initialize_episode`).
         look_at = np.array(self.studio_pos) + [0, 0, 0.04]
-        eye = look_at + 0.22 * np.array([-math.cos(math.radians(50)), 0, math.sin(math.radians(50))])
+        eye = look_at + 0.22 * np.array([-math.cos(CAMERA_PITCH), 0, math.sin(CAMERA_PITCH)])
         return [
             CameraConfig("target_camera", sapien_utils.look_at(eye, look_at), size, size, math.radians(40), 0.01, 2.0)
         ]
@@ -336,7 +339,10 @@ class ActiveVisionFindEnv(BaseEnv):
                 panel.set_pose(Pose.create_from_pq(p, yaw_q(panels[:, k, 2])))
             studio = torch.tensor(self.studio_pos).expand(b, 3).clone()
             studio[:, 2] += self._object_bottoms[env_idx, 0]
-            self.target_copy.set_pose(Pose.create_from_pq(studio, yaw_q(layout[:, 0, 2])))
+            # The copy's yaw relative to the studio camera's view (+x) is the target's relative to the robot's
+            # line of sight to it (outward, along its azimuth): the picture shows the side the robot sees.
+            azimuth = torch.atan2(layout[:, 0, 1], layout[:, 0, 0])
+            self.target_copy.set_pose(Pose.create_from_pq(studio, yaw_q(layout[:, 0, 2] - azimuth)))
             qpos = torch.as_tensor(self.agent.keyframes[self.start_pose].qpos, dtype=torch.float32).expand(b, -1)
             self.agent.reset(qpos)
             self.agent.controller.start_episode(env_idx, qpos)

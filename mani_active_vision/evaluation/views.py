@@ -13,8 +13,8 @@ import torch
 from mani_active_vision.boxes import target_stats
 from mani_active_vision.directions import DIRECTIONS, direction_deltas
 from mani_active_vision.occluders import MIN_VISIBLE_FRACTION
-from mani_active_vision.robots.iiwa import SEARCH_POS
-from mani_active_vision.robots.orbit_controller import step_allowed
+from mani_active_vision.robots.iiwa import CAMERA_PITCH, SEARCH_POS
+from mani_active_vision.robots.orbit_controller import OrbitEEPosControllerConfig, solve_ik, step_allowed
 
 REVERSE = {"left": "right", "right": "left", "forward": "backward", "backward": "forward", "up": "down", "down": "up"}
 """The direction that undoes each direction exactly (docs/design.md §3: the lattice is exact)."""
@@ -67,3 +67,15 @@ def neighbours(positions: torch.Tensor, qpos: torch.Tensor, step: float, config,
     next_pos = positions[:, None, :] + direction_deltas(positions, step, config.pitch, names)
     flat_q, allowed = step_allowed(next_pos.reshape(-1, 3), qpos.repeat_interleave(len(names), 0), config)
     return next_pos, flat_q.reshape(len(positions), len(names), 7), allowed.reshape(len(positions), len(names))
+
+
+def aimed_qpos(xy: np.ndarray, height: float) -> torch.Tensor | None:
+    """Joint positions that aim the camera's optical axis at floor point `xy` from `height`, or None."""
+    bounds = OrbitEEPosControllerConfig
+    radius = float(np.linalg.norm(xy)) - height / math.tan(CAMERA_PITCH)
+    azimuth = math.atan2(xy[1], xy[0])
+    pos = torch.tensor([[radius * math.cos(azimuth), radius * math.sin(azimuth), height]], dtype=torch.float32)
+    qpos, ok = solve_ik(pos, CAMERA_PITCH)
+    if not ok[0] or not bounds.min_radius <= radius <= bounds.max_radius or float(qpos[0, 3]) > bounds.max_elbow:
+        return None
+    return qpos
