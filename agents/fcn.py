@@ -41,6 +41,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from mani_active_vision.agents import fcn_runtime
+from mani_active_vision.agents.verifier import CandidateVerifier, candidate_crops, keep_verified
 from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
@@ -81,10 +82,24 @@ class FCNConfig:
     `predict` empties the mask where it is below `presence_threshold`"""
     presence_threshold: float = 0.5
     """presence probability under which `predict` reports the target absent (with `presence_head`)"""
+    verifier_crop: int = 0
+    """0: none; > 0: a second stage (`agents.verifier`) scores each candidate region of the mask on crops of
+    this side (scene at its full resolution, beside the target image) and `predict` keeps the regions it
+    accepts; the presence is then the best region's score. Trained after the segmentation network
+    (`baselines/train_verifier.py`)"""
+    verifier_threshold: float = 0.5
+    """verifier probability a region needs to be kept"""
+    verifier_regions: int = 4
+    """the largest this many regions of a mask are verified; the rest are dropped"""
 
     def __post_init__(self):
         if self.target_pooling not in TARGET_POOLINGS:
             raise ValueError(f"target_pooling={self.target_pooling!r} is not one of: {', '.join(TARGET_POOLINGS)}")
+        if self.verifier_crop < 0 or self.verifier_crop % 8 or not 0 < self.verifier_threshold < 1:
+            raise ValueError(
+                f"verifier_crop={self.verifier_crop} must be 0 or a positive multiple of 8 and "
+                f"verifier_threshold={self.verifier_threshold} in (0, 1)"
+            )
         if self.shape_kernel < 0 or not 0 < self.presence_threshold < 1:
             raise ValueError(
                 f"shape_kernel={self.shape_kernel} must be >= 0 and presence_threshold={self.presence_threshold} "
@@ -131,6 +146,7 @@ class OneShotFCN(nn.Module):
             self.head = nn.Conv2d(f, 2, 3, 1, 1)
         if config.presence_head:
             self.presence = nn.Sequential(nn.Linear(2 * c3, 32), nn.ReLU(inplace=True), nn.Linear(32, 1))
+        self.verifier = CandidateVerifier(config.verifier_crop) if config.verifier_crop else None
         self._cached_target: tuple | None = None  # (weights' key, target, its features): `predict`'s cache
         self._runtime_cache: tuple | None = None  # (weights' key, {shapes: ONNX Runtime session}): fcn_runtime's
 
@@ -302,7 +318,24 @@ class OneShotFCN(nn.Module):
         if outputs is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
             outputs = self.scene_mask(scene.to(device), features)
         mask, presence = outputs
+        if self.verifier is not None:
+            mask, presence = self.verify(scene.to(device), target, mask)
         return (keep_largest_component(mask) if largest_component else mask), presence
+
+    def verify(self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor):
+        """(mask of the candidate regions the verifier accepts, the best region's probability (N,)) of uint8
+        scenes (N, H, W, 3), normalised targets (N, 3, h, w) and the segmentation's masks (N, H, W)."""
+        candidates = candidate_crops(
+            normalize_images(scene_rgb),
+            target,
+            _target_pixels(target),
+            mask.cpu().numpy(),
+            self.config.verifier_regions,
+            self.config.verifier_crop,
+        )
+        logits = self.verifier(candidates["target_crops"], candidates["scene_crops"])
+        mask, presence = keep_verified(candidates, logits.sigmoid(), self.config.verifier_threshold, len(scene_rgb))
+        return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 
 
 def _target_pixels(target: torch.Tensor) -> torch.Tensor:

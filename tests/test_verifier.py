@@ -1,0 +1,86 @@
+"""The FCN's second stage: crops around candidate regions, which regions it keeps, and its checkpoint."""
+
+import numpy as np
+import pytest
+import torch
+
+from mani_active_vision.agents.fcn import FCNConfig, OneShotFCN, load_checkpoint, save_checkpoint
+from mani_active_vision.agents.verifier import (
+    candidate_crops,
+    keep_verified,
+    mask_box,
+    region_boxes,
+    regions,
+    square_crops,
+)
+
+
+def _image_with_square(size: int, corner: tuple[int, int], side: int) -> torch.Tensor:
+    image = torch.zeros(1, 1, size, size)
+    image[..., corner[0] : corner[0] + side, corner[1] : corner[1] + side] = 1.0
+    return image
+
+
+def test_square_crops_frame_the_box_whatever_its_size_and_place():
+    for size, corner, side in ((128, (10, 70), 20), (128, (60, 5), 40), (64, (30, 30), 12)):
+        image = _image_with_square(size, corner, side)
+        box = torch.tensor([[corner[1], corner[0], corner[1] + side, corner[0] + side]], dtype=torch.float32)
+        crop = square_crops(image, box, 32, margin=2.0)[0, 0]
+        inside = crop > 0.5  # the square fills the middle half of the crop, at any scale
+        assert inside[8:24, 8:24].float().mean() > 0.95 and inside.float().mean() == pytest.approx(0.25, abs=0.04)
+    outside = square_crops(torch.ones(1, 1, 64, 64), torch.tensor([[0.0, 0.0, 20.0, 20.0]]), 32, margin=2.0)
+    assert outside[0, 0, :4, :4].abs().max() < 1e-6 and outside[0, 0, -4:, -4:].min() > 0.99  # off the image: 0
+
+
+def test_regions_and_their_boxes_largest_first():
+    mask = np.zeros((32, 32), bool)
+    mask[2:4, 2:4] = True  # 4 px
+    mask[10:20, 5:8] = True  # 30 px
+    mask[25:30, 25:30] = True  # 25 px
+    labels, ids = regions(mask, max_regions=2)
+    assert [int((labels == k).sum()) for k in ids] == [30, 25]
+    assert region_boxes(labels, ids).tolist() == [[5, 10, 8, 20], [25, 25, 30, 30]]
+    assert regions(np.zeros((8, 8), bool), 4)[1] == []
+    empty_and_square = torch.zeros(2, 16, 16, dtype=torch.bool)
+    empty_and_square[1, 4:6, 3:9] = True
+    assert mask_box(empty_and_square).tolist() == [[0, 0, 16, 16], [3, 4, 9, 6]]
+
+
+def test_keep_verified_keeps_the_regions_over_the_threshold_and_reports_the_best():
+    masks = np.zeros((3, 16, 16), bool)
+    masks[0, 1:3, 1:3] = masks[0, 8:12, 8:12] = True  # two regions
+    masks[1, 5:7, 5:7] = True  # one
+    scene = torch.zeros(3, 3, 16, 16)
+    target = torch.zeros(3, 3, 8, 8)
+    found = candidate_crops(scene, target, torch.ones(3, 8, 8, dtype=torch.bool), masks, max_regions=4, crop=8)
+    assert found["image"].tolist() == [0, 0, 1] and found["scene_crops"].shape == (3, 3, 8, 8)
+    kept, presence = keep_verified(found, torch.tensor([0.9, 0.3, 0.2]), threshold=0.5, num_images=3)
+    assert kept[0].sum() == 16 and kept[0, 9, 9] and not kept[0, 1, 1]  # the larger region, scored 0.9
+    assert not kept[1].any() and not kept[2].any()
+    assert presence.tolist() == pytest.approx([0.9, 0.2, 0.0])
+
+
+def test_predict_keeps_what_the_verifier_accepts_and_the_checkpoint_carries_it(tmp_path):
+    torch.manual_seed(0)
+    model = OneShotFCN(FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.5)).eval()
+    rng = np.random.default_rng(0)
+    scene = rng.integers(0, 256, (2, 64, 64, 3), dtype=np.uint8)
+    target = np.full((2, 64, 64, 3), 128, np.uint8)
+    target[:, 20:40, 24:44] = 200
+    with torch.no_grad():
+        model.up1.bias[1] += 50.0  # the segmentation marks every pixel: one region, the whole image
+    for bias, accepted in ((20.0, True), (-20.0, False)):
+        with torch.no_grad():
+            model.verifier.head[-1].bias.fill_(bias)
+        mask, presence = model.predict_with_presence(scene, target)
+        assert bool(mask.all()) is accepted and not (mask.any() and not accepted)
+        assert ((presence > 0.99) if accepted else (presence < 0.01)).all()
+    path = str(tmp_path / "fcn.pt")
+    save_checkpoint(path, model)
+    loaded, _ = load_checkpoint(path)
+    assert loaded.config.verifier_crop == 16 and torch.equal(
+        loaded.verifier.head[-1].bias, model.verifier.head[-1].bias
+    )
+    assert torch.equal(loaded.predict(scene, target), model.predict(scene, target))
+    with pytest.raises(ValueError, match="verifier_crop=12 must be 0 or a positive multiple of 8"):
+        FCNConfig(verifier_crop=12)
