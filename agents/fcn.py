@@ -41,7 +41,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from mani_active_vision.agents import fcn_runtime
-from mani_active_vision.agents.verifier import CandidateVerifier, candidate_crops, keep_verified
+from mani_active_vision.agents.verifier import CandidateVerifier, candidate_crops, keep_verified, target_crops
 from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
@@ -149,6 +149,7 @@ class OneShotFCN(nn.Module):
         self.verifier = CandidateVerifier(config.verifier_crop) if config.verifier_crop else None
         self._cached_target: tuple | None = None  # (weights' key, target, its features): `predict`'s cache
         self._runtime_cache: tuple | None = None  # (weights' key, {shapes: ONNX Runtime session}): fcn_runtime's
+        self._cached_verifier_target: tuple | None = None  # (weights' key, target, its verifier encoding)
 
     def __getstate__(self):  # copies and pickles leave the ONNX Runtime sessions behind (they cannot be copied)
         return {**super().__getstate__(), "_runtime_cache": None}
@@ -325,15 +326,21 @@ class OneShotFCN(nn.Module):
     def verify(self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor):
         """(mask of the candidate regions the verifier accepts, the best region's probability (N,)) of uint8
         scenes (N, H, W, 3), normalised targets (N, 3, h, w) and the segmentation's masks (N, H, W)."""
+        crop = self.config.verifier_crop
         candidates = candidate_crops(
-            normalize_images(scene_rgb),
-            target,
-            _target_pixels(target),
-            mask.cpu().numpy(),
-            self.config.verifier_regions,
-            self.config.verifier_crop,
+            normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
         )
-        logits = self.verifier(candidates["target_crops"], candidates["scene_crops"])
+        cached = self._cached_verifier_target
+        weights = self._weights_key()
+        if (
+            cached is None
+            or cached[0] != weights
+            or cached[1].shape != target.shape
+            or not torch.equal(cached[1], target)
+        ):
+            encoded = self.verifier.encoder(target_crops(target, _target_pixels(target), crop))
+            self._cached_verifier_target = cached = (weights, target.clone(), encoded)
+        logits = self.verifier.score(cached[2][candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
         mask, presence = keep_verified(candidates, logits.sigmoid(), self.config.verifier_threshold, len(scene_rgb))
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 

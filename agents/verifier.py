@@ -47,7 +47,11 @@ class CandidateVerifier(nn.Module):
         self.head = nn.Sequential(nn.Flatten(), nn.Linear(c3 * cells, 64), nn.ReLU(inplace=True), nn.Linear(64, 1))
 
     def forward(self, target_crops: torch.Tensor, candidate_crops: torch.Tensor) -> torch.Tensor:
-        t, c = self.encoder(target_crops), self.encoder(candidate_crops)
+        return self.score(self.encoder(target_crops), self.encoder(candidate_crops))
+
+    def score(self, target_encoded: torch.Tensor, candidate_encoded: torch.Tensor) -> torch.Tensor:
+        """Logits (M,) of encoded crops (M, C, crop/8, crop/8): an episode encodes its target's crop once."""
+        t, c = target_encoded, candidate_encoded
         return self.head(self.compare(torch.cat([t, c, t * c, (t - c).abs()], 1)))[:, 0]
 
 
@@ -99,18 +103,16 @@ def region_boxes(labels: np.ndarray, ids: list[int]) -> torch.Tensor:
     ).reshape(-1, 4)
 
 
-def candidate_crops(
-    scene: torch.Tensor,
-    target: torch.Tensor,
-    target_pixels: torch.Tensor,
-    masks: np.ndarray,
-    max_regions: int,
-    crop: int,
-) -> dict:
+def target_crops(target: torch.Tensor, target_pixels: torch.Tensor, crop: int) -> torch.Tensor:
+    """Crops (N, 3, crop, crop) of normalised target images (N, 3, h, w) around their non-grey pixels
+    (N, h, w), framed as `square_crops` frames a candidate."""
+    return square_crops(target, mask_box(target_pixels), crop)
+
+
+def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, crop: int) -> dict:
     """The verifier's inputs for every image's `max_regions` largest candidate regions.
 
-    scene (N, 3, H, W) and target (N, 3, h, w) normalised images, target_pixels (N, h, w) bool (the target
-    image's non-grey pixels), masks (N, H, W) bool candidate masks. Returns dict(target_crops, scene_crops
+    scene (N, 3, H, W) normalised images, masks (N, H, W) bool candidate masks. Returns dict(scene_crops
     (M, 3, crop, crop), image (M,) the image each region is in, labels [(H, W) int per image], ids [region
     labels per image, largest first])."""
     labels, ids, boxes, image = [], [], [], []
@@ -121,9 +123,8 @@ def candidate_crops(
         boxes.append(region_boxes(image_labels, image_ids))
         image += [i] * len(image_ids)
     image = torch.tensor(image, dtype=torch.long)
-    target_crops = square_crops(target, mask_box(target_pixels), crop)[image]
     scene_crops = square_crops(scene[image], torch.cat(boxes).to(scene.device), crop)
-    return dict(target_crops=target_crops, scene_crops=scene_crops, image=image, labels=labels, ids=ids)
+    return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids)
 
 
 def keep_verified(candidates: dict, probability: torch.Tensor, threshold: float, num_images: int):

@@ -33,7 +33,7 @@ from mani_active_vision.agents.fcn import (
     normalize_images,
     save_checkpoint,
 )
-from mani_active_vision.agents.verifier import candidate_crops, mask_box, square_crops
+from mani_active_vision.agents.verifier import candidate_crops, square_crops, target_crops
 from mani_active_vision.json_io import save_json
 from mani_active_vision.segmentation_data import load_segmentation_data
 
@@ -102,24 +102,16 @@ def build_candidates(model: OneShotFCN, data: dict, args: Args, rng: np.random.G
         scene_rgb, target_rgb = data["scene"][start:stop], data["target"][start:stop]
         masks = model.predict(scene_rgb, target_rgb).numpy()
         scene, target = normalize_images(torch.from_numpy(scene_rgb)), normalize_images(torch.from_numpy(target_rgb))
-        pixels = _target_pixels(target)
-        found = candidate_crops(scene, target, pixels, masks, args.regions, args.crop)
-        groups = [
-            (
-                found["image"],
-                found["target_crops"],
-                found["scene_crops"],
-                region_targets(found, data["objects"][start:stop]),
-                True,
-            )
-        ]
+        targets = target_crops(target, _target_pixels(target), args.crop)
+        found = candidate_crops(scene, masks, args.regions, args.crop)
+        region_labels = region_targets(found, data["objects"][start:stop])
+        groups = [(found["image"], targets[found["image"]], found["scene_crops"], region_labels, True)]
         if args.ground_truth_boxes:
             frames, boxes, is_target = object_boxes(data["objects"][start:stop], rng)
             frames = torch.tensor(frames, dtype=torch.long)
-            target_crops = square_crops(target, mask_box(pixels), args.crop)[frames]
-            groups.append((frames, target_crops, square_crops(scene[frames], boxes, args.crop), is_target, False))
-        for frames, target_crops, scene_crops, labels, from_fcn in groups:
-            parts["target"].append(target_crops.half())
+            groups.append((frames, targets[frames], square_crops(scene[frames], boxes, args.crop), is_target, False))
+        for frames, frame_targets, scene_crops, labels, from_fcn in groups:
+            parts["target"].append(frame_targets.half())
             parts["scene"].append(scene_crops.half())
             parts["label"].append(torch.from_numpy(labels))
             parts["frame"].append(frames + start)

@@ -51,8 +51,7 @@ def test_keep_verified_keeps_the_regions_over_the_threshold_and_reports_the_best
     masks[0, 1:3, 1:3] = masks[0, 8:12, 8:12] = True  # two regions
     masks[1, 5:7, 5:7] = True  # one
     scene = torch.zeros(3, 3, 16, 16)
-    target = torch.zeros(3, 3, 8, 8)
-    found = candidate_crops(scene, target, torch.ones(3, 8, 8, dtype=torch.bool), masks, max_regions=4, crop=8)
+    found = candidate_crops(scene, masks, max_regions=4, crop=8)
     assert found["image"].tolist() == [0, 0, 1] and found["scene_crops"].shape == (3, 3, 8, 8)
     kept, presence = keep_verified(found, torch.tensor([0.9, 0.3, 0.2]), threshold=0.5, num_images=3)
     assert kept[0].sum() == 16 and kept[0, 9, 9] and not kept[0, 1, 1]  # the larger region, scored 0.9
