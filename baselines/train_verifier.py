@@ -6,7 +6,8 @@
 The candidates are what it will see: the regions the segmentation network (`--fcn`, frozen) marks on each
 rollout frame (its `verifier_regions` largest), each labelled "target" when most of its pixels lie on the
 target; and, for more look-alikes and more views of targets, every object in view with at least 4 pixels
-around its true box, moved and scaled a little (as a proposal would be). The frames' scene seeds split them:
+around its true box, moved and scaled a little (as a proposal would be); at the frames' 128² and
+area-downsampled to 64² (`--scales`: the camera sizes the agents use). The frames' scene seeds split them:
 every 10th scene is validation. Binary cross-entropy, both crops mirrored together half the time. The
 threshold is the one with the best accuracy on the validation frames' FCN regions; the best epoch by the
 same. Saves `best.pt`: the FCN's checkpoint with `verifier_crop` set and the verifier's weights.
@@ -53,6 +54,8 @@ class Args:
     """regions of each mask verified"""
     ground_truth_boxes: bool = True
     """also train on every object in view around its (jittered) true box"""
+    scales: tuple[int, ...] = (1, 2)
+    """the frames also area-downsampled by these factors (2: the 64² camera the DQN's env config uses)"""
     epochs: int = 12
     batch_size: int = 128
     lr: float = 1e-3
@@ -91,6 +94,15 @@ def object_boxes(objects: np.ndarray, rng: np.random.Generator) -> tuple[list[in
             boxes.append([cx - hw, cy - hh, cx + hw, cy + hh])
             is_target.append(float(value == 1))
     return frames, torch.tensor(boxes, dtype=torch.float32).reshape(-1, 4), np.array(is_target, np.float32)
+
+
+def downsample(data: dict, factor: int) -> dict:
+    """Frames area-downsampled by `factor` (object maps: each block's top-left pixel), as a smaller camera."""
+    if factor == 1:
+        return data
+    n, size = len(data["scene"]), data["scene"].shape[1] // factor
+    blocks = data["scene"].reshape(n, size, factor, size, factor, 3).astype(np.float32).mean((2, 4))
+    return dict(data, scene=np.round(blocks).astype(np.uint8), objects=data["objects"][:, ::factor, ::factor])
 
 
 @torch.inference_mode()
@@ -138,12 +150,13 @@ def main(args: Args):
             raise ValueError(f"{data_dir!r} is not a rollout-frame set (no object maps): collect_rollout_frames.py")
     data = {k: np.concatenate([d[k] for d in sets]) for k in ("scene", "target", "objects", "scene_seed")}
     started = time.time()
-    candidates = build_candidates(fcn, data, args, rng)
+    per_scale = [build_candidates(fcn, downsample(data, factor), args, rng) for factor in args.scales]
+    candidates = {k: torch.cat([c[k] for c in per_scale]) for k in per_scale[0]}
     val_frame = torch.from_numpy(data["scene_seed"] % 10 == 0)[candidates["frame"]]
     train_idx, val_idx = torch.nonzero(~val_frame)[:, 0], torch.nonzero(val_frame & candidates["fcn"])[:, 0]
     labels = candidates["label"]
     print(
-        f"{len(labels)} candidates from {len(data['scene'])} frames in {time.time() - started:.0f} s: train "
+        f"{len(labels)} candidates from {len(data['scene'])} frames at scales {args.scales} in {time.time() - started:.0f} s: train "
         f"{len(train_idx)} ({labels[train_idx].mean():.2f} target), validation (FCN regions) {len(val_idx)} "
         f"({labels[val_idx].mean():.2f} target)"
     )

@@ -1,16 +1,34 @@
 #!/usr/bin/env bash
-# Reproduce the shipped FCN weights (agents/weights/fcn.pt): render the data sets, train, evaluate.
-# On 2 CPU cores: data ~10 min (2 rendering processes), training ~50 min (12 epochs on one thread).
+# Reproduce the shipped FCN weights (agents/weights/fcn.pt): the segmentation network and its verifier.
+# 1. render the aimed-view data sets; 2. train the segmentation network (the paper's design); 3. roll the
+# project's policies out on train objects for frames of what they see; 4. train the verifier of the
+# network's candidate regions on those frames; 5. evaluate on the test sets and on held-out rollout frames.
+# On 2 CPU cores (one thread per process): see docs/vision.md for the last end-to-end run's times.
 # Run from the repository root with the .venv set up.
 set -euo pipefail
 PY=${PY:-.venv/bin/python}
 DATA=${DATA:-data/seg64}
+ROLLOUT=${ROLLOUT:-data/rollout128}
 WORKERS=${WORKERS:-2}
+export LP_NUM_THREADS=1
 $PY baselines/collect_segmentation_data.py --workers $WORKERS --out-dir $DATA/train       --object-set train  --num-scenes 1500 --seed 0
 $PY baselines/collect_segmentation_data.py --workers $WORKERS --out-dir $DATA/val         --object-set train  --num-scenes 50   --seed 100000
 $PY baselines/collect_segmentation_data.py --workers $WORKERS --out-dir $DATA/test_train  --object-set train  --num-scenes 50   --seed 200000
 $PY baselines/collect_segmentation_data.py --workers $WORKERS --out-dir $DATA/test_unseen --object-set unseen --num-scenes 50   --seed 300000
-# the defaults of train_fcn.py are the shipped recipe: 12 epochs, flips, cross-entropy + soft IoU, full-resolution skip
+# the defaults of train_fcn.py are the segmentation network's recipe: 12 epochs, flips, cross-entropy + soft IoU
 $PY baselines/train_fcn.py --data-dir $DATA --run-dir runs/fcn
-cp runs/fcn/best.pt agents/weights/fcn.pt
+# frames from rollouts on train objects (the servo on this network's box walks up to its look-alikes);
+# two collections side by side, one per core
+SOURCES="servo_sky explore_servo_sky random_sky random_search servo_fcn_sky"
+$PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/train_a --config.object-set train --config.seed 500000 \
+  --config.episodes-per-source 75 --config.sources $SOURCES --config.fcn-weights runs/fcn/best.pt &
+FIRST=$!
+$PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/train_b --config.object-set train --config.seed 600000 \
+  --config.episodes-per-source 75 --config.sources $SOURCES --config.fcn-weights runs/fcn/best.pt &
+wait $FIRST; wait $!
+$PY baselines/train_verifier.py --fcn runs/fcn/best.pt --data-dirs $ROLLOUT/train_a $ROLLOUT/train_b --run-dir runs/verifier
+cp runs/verifier/best.pt agents/weights/fcn.pt
+[ -f $ROLLOUT/test_unseen/manifest.json ] || $PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/test_unseen
 $PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $DATA/test_train $DATA/test_unseen --largest-component
+$PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $ROLLOUT/test_unseen --largest-component \
+  --out outputs/fcn_eval_rollout.md --examples-png outputs/fcn_examples_rollout.png
