@@ -280,8 +280,9 @@ class OneShotFCN(nn.Module):
 
     def predict(self, scene_rgb, target_rgb, largest_component: bool = False, runtime: str = "auto") -> torch.Tensor:
         """Target mask (N, H, W) bool of uint8 scenes (N, H, W, 3) given uint8 target images (N, h, w, 3);
-        with `largest_component`, only each mask's largest connected region is kept (`boxes.largest_component`).
-        Empty where the model judges the target absent (`predict_with_presence` gives that score too)."""
+        with `largest_component`, only each mask's largest connected region is kept (`boxes.largest_component`;
+        with a verifier, the region it finds most probable). Empty where the model judges the target absent
+        (`predict_with_presence` gives that score too)."""
         return self.predict_with_presence(scene_rgb, target_rgb, largest_component, runtime)[0]
 
     @torch.inference_mode()
@@ -319,13 +320,14 @@ class OneShotFCN(nn.Module):
         if outputs is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
             outputs = self.scene_mask(scene.to(device), features)
         mask, presence = outputs
-        if self.verifier is not None:
-            mask, presence = self.verify(scene.to(device), target, mask)
+        if self.verifier is not None:  # with `largest_component`, the most probable region: the one kept
+            mask, presence = self.verify(scene.to(device), target, mask, best_only=largest_component)
         return (keep_largest_component(mask) if largest_component else mask), presence
 
-    def verify(self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor):
-        """(mask of the candidate regions the verifier accepts, the best region's probability (N,)) of uint8
-        scenes (N, H, W, 3), normalised targets (N, 3, h, w) and the segmentation's masks (N, H, W)."""
+    def verify(self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, best_only: bool = False):
+        """(mask of the candidate regions the verifier accepts (with `best_only`, the most probable of them),
+        the best region's probability (N,)) of uint8 scenes (N, H, W, 3), normalised targets (N, 3, h, w) and
+        the segmentation's masks (N, H, W)."""
         crop = self.config.verifier_crop
         candidates = candidate_crops(
             normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
@@ -341,7 +343,9 @@ class OneShotFCN(nn.Module):
             encoded = self.verifier.encoder(target_crops(target, _target_pixels(target), crop))
             self._cached_verifier_target = cached = (weights, target.clone(), encoded)
         logits = self.verifier.score(cached[2][candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
-        mask, presence = keep_verified(candidates, logits.sigmoid(), self.config.verifier_threshold, len(scene_rgb))
+        mask, presence = keep_verified(
+            candidates, logits.sigmoid(), self.config.verifier_threshold, len(scene_rgb), best_only
+        )
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 
 

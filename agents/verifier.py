@@ -44,7 +44,9 @@ class CandidateVerifier(nn.Module):
         self.encoder = nn.Sequential(_conv(3, c1), _conv(c1, c2, 2), _conv(c2, c3, 2), _conv(c3, c3, 2))
         self.compare = nn.Sequential(nn.Conv2d(4 * c3, c3, 1), nn.ReLU(inplace=True))
         cells = (crop // 8) ** 2
-        self.head = nn.Sequential(nn.Flatten(), nn.Linear(c3 * cells, 64), nn.ReLU(inplace=True), nn.Linear(64, 1))
+        self.head = nn.Sequential(
+            nn.Flatten(), nn.Dropout(0.3), nn.Linear(c3 * cells, 64), nn.ReLU(inplace=True), nn.Linear(64, 1)
+        )
 
     def forward(self, target_crops: torch.Tensor, candidate_crops: torch.Tensor) -> torch.Tensor:
         return self.score(self.encoder(target_crops), self.encoder(candidate_crops))
@@ -127,9 +129,12 @@ def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, cr
     return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids)
 
 
-def keep_verified(candidates: dict, probability: torch.Tensor, threshold: float, num_images: int):
-    """(masks (N, H, W) bool of the regions whose probability is at least `threshold`, presence (N,) = the best
-    region's probability, 0 for an image without regions)."""
+def keep_verified(
+    candidates: dict, probability: torch.Tensor, threshold: float, num_images: int, best_only: bool = False
+):
+    """(masks (N, H, W) bool of the regions whose probability is at least `threshold` (with `best_only`, only
+    the most probable of them), presence (N,) = the best region's probability, 0 for an image without
+    regions)."""
     masks = np.zeros((num_images, *candidates["labels"][0].shape), dtype=bool) if num_images else np.zeros((0, 0, 0))
     presence = torch.zeros(num_images)
     probability = probability.cpu()
@@ -140,5 +145,7 @@ def keep_verified(candidates: dict, probability: torch.Tensor, threshold: float,
         if len(ids):
             presence[i] = p.max()
             accepted = [k for k, q in zip(ids, p.tolist()) if q >= threshold]
+            if best_only and accepted:
+                accepted = [ids[int(p.argmax())]]
             masks[i] = np.isin(labels, accepted)
     return torch.from_numpy(masks), presence

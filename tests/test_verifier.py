@@ -57,6 +57,9 @@ def test_keep_verified_keeps_the_regions_over_the_threshold_and_reports_the_best
     assert kept[0].sum() == 16 and kept[0, 9, 9] and not kept[0, 1, 1]  # the larger region, scored 0.9
     assert not kept[1].any() and not kept[2].any()
     assert presence.tolist() == pytest.approx([0.9, 0.2, 0.0])
+    both, _ = keep_verified(found, torch.tensor([0.6, 0.7, 0.2]), threshold=0.5, num_images=3)
+    best, _ = keep_verified(found, torch.tensor([0.6, 0.7, 0.2]), threshold=0.5, num_images=3, best_only=True)
+    assert both[0].sum() == 20 and best[0].sum() == 4 and best[0, 1, 1]  # the smaller region, scored higher
 
 
 def test_predict_keeps_what_the_verifier_accepts_and_the_checkpoint_carries_it(tmp_path):
