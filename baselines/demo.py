@@ -24,7 +24,7 @@ import tyro
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.agents.q_network import checkpoint_env_config
-from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
 from mani_active_vision.json_io import save_json
@@ -59,6 +59,13 @@ class Args:
     """the shipped DQN, evaluated as deployed (its checkpoint's env: the FCN's box, unseen objects); empty: skip"""
 
 
+def eval_env(args: Args, box_source: str) -> EnvConfig:
+    """The evaluation env on `box_source`: the training env with the evaluation objects (and, on the FCN's box,
+    the camera size the FCN is deployed at)."""
+    config = args.env.replace(box_source=box_source, object_set=args.eval_object_set)
+    return config.replace(image_size=FCN_IMAGE_SIZE) if box_source == "fcn" else config
+
+
 def main(args: Args):
     torch.set_num_threads(1)
     if args.preset not in dqn.PRESETS:
@@ -86,10 +93,7 @@ def main(args: Args):
 
     evaluations, metrics = {}, os.path.join(args.out_dir, "evaluation.json")
     other = "ground_truth" if args.box_source == "fcn" else "fcn"
-    runs = [
-        (f"explore→dqn, {b} box", args.env.replace(box_source=b, object_set=args.eval_object_set), result["checkpoint"])
-        for b in (args.box_source, other)
-    ]
+    runs = [(f"explore→dqn, {b} box", eval_env(args, b), result["checkpoint"]) for b in (args.box_source, other)]
     if args.shipped:
         env = checkpoint_env_config(args.shipped)
         runs.append((f"shipped {args.shipped}, {env.box_source} box, {env.object_set} objects", env, args.shipped))
@@ -105,7 +109,7 @@ def main(args: Args):
     print(markdown_table({name: evaluation["summary"] for name, evaluation in evaluations.items()}))
 
     if args.record_episodes:
-        recorded = args.env.replace(box_source=args.box_source, object_set=args.eval_object_set)
+        recorded = eval_env(args, args.box_source)
         with RerunRecorder(make_env(recorded), args.recording) as env:
             policy = make_policy("explore", env, then="dqn", checkpoint=result["checkpoint"], seed=args.seed)
             evaluate(env, policy, eval_seeds(args.record_episodes), with_reference=False, desc="record")

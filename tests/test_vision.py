@@ -35,10 +35,10 @@ from mani_active_vision.segmentation_data import (
     sample_camera_position,
 )
 
-SHIPPED_UNSEEN_IOU = 0.85
-"""Shipped weights' mean target IoU on a small fresh unseen-object batch must exceed this: measured 0.928 on
-this batch (0.934 and 0.988 on two other 3-scene batches; 0.936 on the 1,000-sample unseen test split,
-docs/vision.md), less a margin for the batch's small size."""
+SHIPPED_UNSEEN_IOU = 0.65
+"""Shipped weights' mean target IoU on a small fresh unseen-object batch of aimed 64² views must exceed this:
+measured 0.828 on this batch (0.747 for its 128² renders; 0.711 on the 1,000-sample unseen test split,
+docs/vision.md: the verifier rejects some partial and far views), less a margin for the batch's small size."""
 
 
 def _render(object_set="train", scenes=(0,), views=6, mode_probs=(0.65, 0.2, 0.15, 0.0), image_size=64):
@@ -140,22 +140,27 @@ def test_shipped_weights_segment_unseen_objects():
     assert metrics["target_iou"] > SHIPPED_UNSEEN_IOU, metrics
 
 
-SHIPPED_ROLLOUT = dict(iou_20px=0.75, false_positive_rate=0.9)
+SHIPPED_ROLLOUT = dict(iou_20px=0.55, false_positive_rate=0.3, network_false_positive_rate=0.4)
 """Shipped weights on a small fresh set of rollout frames (one episode per source, unseen objects, 128², seeds
 410,000+): target IoU on frames with >= 20 target pixels above, false-positive rate on target-absent frames below
-these. Measured 0.857 and 0.786 on this set (69 and 14 frames); two other seeds' sets gave 0.718 / 0.200 and
-0.626 / 0.524, the full 2,080-frame test set 0.799 / 0.586 (docs/vision.md): a regression guard, loose because
-so few frames vary this much."""
+these; and the segmentation network alone (the verifier taken off) marks more than this share of those frames
+(measured 0.929).
+Measured 0.703 and 0.000 on this set (69 and 14 frames); two other seeds' sets gave 0.626 / 0.000 and 0.351 /
+0.095, the full 2,080-frame test set 0.720 / 0.055 (docs/vision.md): a regression guard, loose because so few
+frames vary this much."""
 
 
 def test_shipped_weights_on_frames_from_rollouts(tmp_path):
+    import dataclasses
+
     from mani_active_vision.evaluation.rollout_frames import RolloutFramesConfig, collect_rollout_frames
 
     config = RolloutFramesConfig(episodes_per_source=1, frame_stride=4, seed=410_000)
     collect_rollout_frames(str(tmp_path), config, progress=False)
     data = load_segmentation_data(str(tmp_path))
+    model = load_pretrained()
     counts = mask_counts(
-        load_pretrained().predict(data["scene"], data["target"], largest_component=True), torch.from_numpy(data["mask"])
+        model.predict(data["scene"], data["target"], largest_component=True), torch.from_numpy(data["mask"])
     )
     visible = counts["true"] >= 20
     metrics = summarize_counts(counts)
@@ -163,6 +168,12 @@ def test_shipped_weights_on_frames_from_rollouts(tmp_path):
     assert visible.sum() >= 10 and metrics["samples_without_target"] >= 10, metrics
     assert iou_20px > SHIPPED_ROLLOUT["iou_20px"], (iou_20px, metrics)
     assert metrics["false_positive_rate"] < SHIPPED_ROLLOUT["false_positive_rate"], metrics
+    network = OneShotFCN(dataclasses.replace(model.config, verifier_crop=0)).eval()
+    network.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("verifier.")})
+    alone = summarize_counts(
+        mask_counts(network.predict(data["scene"], data["target"], True), torch.from_numpy(data["mask"]))
+    )
+    assert alone["false_positive_rate"] > SHIPPED_ROLLOUT["network_false_positive_rate"], alone
 
 
 def _torch_margin(model, scene, target):
