@@ -21,7 +21,7 @@ from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import DOWN, FORWARD, LEFT, POLICIES, RIGHT, UP, ExplorePolicy, make_policy
 from mani_active_vision.agents.q_network import save_q_network
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.envs import EnvConfig
+from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
 from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
@@ -274,8 +274,9 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
     path = os.path.join(ROOT, "agents", "weights", "dqn.pt")
     config = torch.load(path, weights_only=True)["config"]  # weights and plain data only
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
-    assert (deployed.box_source, deployed.object_set) == ("fcn", "unseen")  # evaluate.py starts from this env
-    assert trained.box_source == "ground_truth" and deployed == trained.replace(box_source="fcn", object_set="unseen")
+    assert (deployed.box_source, deployed.object_set, deployed.image_size) == ("fcn", "unseen", FCN_IMAGE_SIZE)
+    assert trained.box_source == "ground_truth"  # evaluate.py starts from the deployed env
+    assert deployed == trained.replace(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
     env = mav.make_env(deployed.replace(max_episode_steps=25))
     try:
         policy = make_policy("explore", env, then="dqn", checkpoint=path)

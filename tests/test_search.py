@@ -14,7 +14,7 @@ from mani_active_vision.agents import search
 from mani_active_vision.agents.policies import MemoryPolicy, box_array, make_policy, policy_kwargs
 from mani_active_vision.agents.q_network import checkpoint_env_config
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim
-from mani_active_vision.envs import EnvConfig
+from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 
 SHORT = EnvConfig(with_ee_pos=True, max_episode_steps=12)  # short episodes: the same code, less time
@@ -124,7 +124,7 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     config = torch.load(path, weights_only=True)["config"]
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
-    assert deployed == trained.replace(box_source="fcn", object_set="unseen")
+    assert deployed == trained.replace(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
     env = mav.make_env(deployed.replace(max_episode_steps=10))
     try:
         policy = make_policy("memory", env, checkpoint=path)

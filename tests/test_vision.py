@@ -1,6 +1,7 @@
 """The one-shot segmentation FCN, its data, its shipped weights and the box state built on it."""
 
 import copy
+import dataclasses
 import warnings
 
 import numpy as np
@@ -151,8 +152,6 @@ frames vary this much."""
 
 
 def test_shipped_weights_on_frames_from_rollouts(tmp_path):
-    import dataclasses
-
     from mani_active_vision.evaluation.rollout_frames import RolloutFramesConfig, collect_rollout_frames
 
     config = RolloutFramesConfig(episodes_per_source=1, frame_stride=4, seed=410_000)
@@ -168,10 +167,8 @@ def test_shipped_weights_on_frames_from_rollouts(tmp_path):
     assert visible.sum() >= 10 and metrics["samples_without_target"] >= 10, metrics
     assert iou_20px > SHIPPED_ROLLOUT["iou_20px"], (iou_20px, metrics)
     assert metrics["false_positive_rate"] < SHIPPED_ROLLOUT["false_positive_rate"], metrics
-    network = OneShotFCN(dataclasses.replace(model.config, verifier_crop=0)).eval()
-    network.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("verifier.")})
     alone = summarize_counts(
-        mask_counts(network.predict(data["scene"], data["target"], True), torch.from_numpy(data["mask"]))
+        mask_counts(_shipped_network().predict(data["scene"], data["target"], True), torch.from_numpy(data["mask"]))
     )
     assert alone["false_positive_rate"] > SHIPPED_ROLLOUT["network_false_positive_rate"], alone
 
@@ -192,9 +189,18 @@ def _assert_masks_agree(fast, plain, margin):
     assert (margin[differ].abs() < 1e-3).all(), margin[differ]
 
 
+def _shipped_network() -> OneShotFCN:
+    """The shipped weights' segmentation network alone (the verifier, which runs in torch after it, taken off):
+    what ONNX Runtime runs."""
+    shipped = load_pretrained()
+    network = OneShotFCN(dataclasses.replace(shipped.config, verifier_crop=0)).eval()
+    network.load_state_dict({k: v for k, v in shipped.state_dict().items() if not k.startswith("verifier.")})
+    return network
+
+
 @pytest.mark.parametrize("image_size", [64, 128])
 def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size):
-    model = load_pretrained()
+    model = _shipped_network()
     data = _render("unseen", scenes=(900004, 900005), views=6, mode_probs=(0.65, 0.2, 0.15, 0.0), image_size=image_size)
     plain = model.predict(data["scene"], data["target"], runtime="torch")
     margin = _torch_margin(model, data["scene"], data["target"])
@@ -212,7 +218,7 @@ def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size)
 
 def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
     torch.manual_seed(0)
-    model = load_pretrained()
+    model = _shipped_network()
     data = _render(scenes=(4,), views=2, mode_probs=(1.0, 0.0, 0.0, 0.0))
     scene, target = data["scene"], data["target"]
 
