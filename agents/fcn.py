@@ -321,19 +321,21 @@ class OneShotFCN(nn.Module):
             outputs = self.scene_mask(scene.to(device), features)
         mask, presence = outputs
         if self.verifier is not None:  # with `largest_component`, the most probable region: the one kept
-            mask, presence = self.verify(scene.to(device), target, mask, best_only=largest_component)
+            mask, presence = self.verify(scene.to(device), target, mask, weights, best_only=largest_component)
+            return mask, presence
         return (keep_largest_component(mask) if largest_component else mask), presence
 
-    def verify(self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, best_only: bool = False):
+    def verify(
+        self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, weights: tuple, best_only: bool = False
+    ):
         """(mask of the candidate regions the verifier accepts (with `best_only`, the most probable of them),
         the best region's probability (N,)) of uint8 scenes (N, H, W, 3), normalised targets (N, 3, h, w) and
-        the segmentation's masks (N, H, W)."""
+        the segmentation's masks (N, H, W); `weights` is `_weights_key()` (keys the target crop's encoding)."""
         crop = self.config.verifier_crop
         candidates = candidate_crops(
             normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
         )
         cached = self._cached_verifier_target
-        weights = self._weights_key()
         if (
             cached is None
             or cached[0] != weights
