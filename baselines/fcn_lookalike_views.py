@@ -19,7 +19,7 @@ from tqdm import tqdm
 from mani_active_vision.agents.fcn import load_pretrained
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
-from mani_active_vision.evaluation.views import aimed_qpos
+from mani_active_vision.evaluation.views import aimed_views
 
 SIZE_BINS = (1, 100, 400, 1600, 5000, 10**9)
 """edges of the distractor's size in pixels"""
@@ -50,13 +50,7 @@ def main(args: Args):
             obs, _ = env.reset(seed=seed)
             relations = slot_relations(base.object_names[0], base.object_colors[0])
             for k in np.flatnonzero(relations == RELATIONS.index("same colour")):
-                for height in args.heights:
-                    qpos = aimed_qpos(base.objects[k].pose.p[0, :2].numpy(), height)
-                    if qpos is None:
-                        continue
-                    base.agent.robot.set_qpos(qpos)
-                    base.forget_view()
-                    images = base._hand_camera_images()
+                for images in aimed_views(base, k, args.heights):
                     segmentation = images["segmentation"][0, ..., 0].numpy()
                     if (segmentation == int(base.target_seg_id[0])).any():
                         continue

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from mani_active_vision.boxes import silhouette, silhouette_iou
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
-from mani_active_vision.evaluation.views import aimed_qpos
+from mani_active_vision.evaluation.views import aimed_views
 
 SIZE_BINS = (20, 100, 400, 1600, 10**9)
 """edges of the object's size in the wrist view, pixels"""
@@ -77,13 +77,8 @@ def main(args: Args):
             relations = slot_relations(base.object_names[0], base.object_colors[0])
             slots = [0, *np.flatnonzero(relations == RELATIONS.index("same colour"))]
             for k in slots:
-                for height in args.heights:
-                    qpos = aimed_qpos(base.objects[k].pose.p[0, :2].numpy(), height)
-                    if qpos is None:
-                        continue
-                    base.agent.robot.set_qpos(qpos)
-                    base.forget_view()
-                    segmentation = base._hand_camera_images()["segmentation"][0, ..., 0].numpy()
+                for images in aimed_views(base, k, args.heights):
+                    segmentation = images["segmentation"][0, ..., 0].numpy()
                     mask = object_map(base, segmentation) == k + 1
                     border = mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any()
                     if mask.sum() < SIZE_BINS[0] or border:

@@ -79,3 +79,15 @@ def aimed_qpos(xy: np.ndarray, height: float) -> torch.Tensor | None:
     if not ok[0] or not bounds.min_radius <= radius <= bounds.max_radius or float(qpos[0, 3]) > bounds.max_elbow:
         return None
     return qpos
+
+
+def aimed_views(base, slot: int, heights):
+    """Yields the wrist camera's images (`_hand_camera_images` of env 0) aimed at object `slot` of a reset task
+    from each of `heights` (m) the camera can reach there (`aimed_qpos`); the arm is set straight to each pose,
+    one view at a time."""
+    for height in heights:
+        qpos = aimed_qpos(base.objects[slot].pose.p[0, :2].numpy(), height)
+        if qpos is not None:
+            base.agent.robot.set_qpos(qpos)
+            base.forget_view()
+            yield base._hand_camera_images()
