@@ -6,7 +6,8 @@ default the `hold_demo` preset: the shaped learner's reward, without which it do
 paying for time in success, the scripted servo acting the first 10 episodes; docs/control.md) on the
 ground-truth box (privileged training: learning on the FCN's box, whose false positives jump between
 look-alike objects, failed), then evaluates the greedy agent (exploration, then the DQN) on fixed
-evaluation seeds (unseen objects) acting on the box from the shipped FCN — as deployed — and on the ground-truth box,
+evaluation seeds (unseen objects) acting on the box from the shipped FCN at 128² (`envs.FCN_IMAGE_SIZE`) — as
+deployed — and on the ground-truth box,
 records the first FCN episodes to a Rerun file, prints the tables and where everything was written. It then
 evaluates the shipped agent (`agents/weights/dqn.pt`, scripts/make_dqn.sh) as deployed, on the FCN's box and
 unseen objects, on the same episode seeds.
