@@ -228,18 +228,24 @@ class OneShotFCN(nn.Module):
         params = itertools.chain(self.parameters(), self.buffers())
         return (self.config, *((p.data_ptr(), p._version) for p in params))
 
-    def _target_features_cached(self, target: torch.Tensor, weights: tuple) -> list[torch.Tensor]:
-        """`target_features`, reusing the last call's while the target images and the weights (`_weights_key`)
-        are the same: an episode shows one target image at every step, so its features are computed once."""
-        cached = self._cached_target
+    def _per_target(self, slot: str, target: torch.Tensor, weights: tuple, compute):
+        """`compute()`, reusing the last call's (kept in attribute `slot`) while the target images and the weights
+        (`_weights_key`) are the same: an episode shows one target image at every step, so what depends only on
+        it is computed once."""
+        cached = getattr(self, slot)
         if (
             cached is None
             or cached[0] != weights
             or cached[1].shape != target.shape
             or not torch.equal(cached[1], target)
         ):
-            self._cached_target = cached = (weights, target.clone(), self.target_features(target))
+            cached = (weights, target.clone(), compute())
+            setattr(self, slot, cached)
         return cached[2]
+
+    def _target_features_cached(self, target: torch.Tensor, weights: tuple) -> list[torch.Tensor]:
+        """`target_features` of the target images, computed once per target (`_per_target`)."""
+        return self._per_target("_cached_target", target, weights, lambda: self.target_features(target))
 
     def scene_outputs(
         self, scene_rgb: torch.Tensor, target_features: list[torch.Tensor]
@@ -335,16 +341,13 @@ class OneShotFCN(nn.Module):
         candidates = candidate_crops(
             normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
         )
-        cached = self._cached_verifier_target
-        if (
-            cached is None
-            or cached[0] != weights
-            or cached[1].shape != target.shape
-            or not torch.equal(cached[1], target)
-        ):
-            encoded = self.verifier.encoder(target_crops(target, _target_pixels(target), crop))
-            self._cached_verifier_target = cached = (weights, target.clone(), encoded)
-        logits = self.verifier.score(cached[2][candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
+        encoded = self._per_target(
+            "_cached_verifier_target",
+            target,
+            weights,
+            lambda: self.verifier.encoder(target_crops(target, _target_pixels(target), crop)),
+        )
+        logits = self.verifier.score(encoded[candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
         mask, presence = keep_verified(
             candidates, logits.sigmoid(), self.config.verifier_threshold, len(scene_rgb), best_only
         )
