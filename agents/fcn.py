@@ -175,7 +175,7 @@ class OneShotFCN(nn.Module):
         if self.config.target_pooling == "max":
             vectors = [t.amax((2, 3), keepdim=True) for t in features]
         else:
-            pixels = _target_pixels(target).unsqueeze(1).float()
+            pixels = target_pixels(target).unsqueeze(1).float()
             pixels = torch.where(pixels.flatten(1).any(1).view(-1, 1, 1, 1), pixels, torch.ones_like(pixels))
             vectors = []
             for t in features:
@@ -345,7 +345,7 @@ class OneShotFCN(nn.Module):
             "_cached_verifier_target",
             target,
             weights,
-            lambda: self.verifier.encoder(target_crops(target, _target_pixels(target), crop)),
+            lambda: self.verifier.encoder(target_crops(target, target_pixels(target), crop)),
         )
         logits = self.verifier.score(encoded[candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
         mask, presence = keep_verified(
@@ -354,7 +354,7 @@ class OneShotFCN(nn.Module):
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 
 
-def _target_pixels(target: torch.Tensor) -> torch.Tensor:
+def target_pixels(target: torch.Tensor) -> torch.Tensor:
     """(N, h, w) bool: the pixels of normalised target images (N, 3, h, w) that are not the grey background."""
     return (target - TARGET_BACKGROUND).abs().amax(1).gt(0.5 / 255)
 
@@ -362,7 +362,7 @@ def _target_pixels(target: torch.Tensor) -> torch.Tensor:
 def _box_grid(target: torch.Tensor, size: int) -> torch.Tensor:
     """A `grid_sample` grid (N, size, size, 2) over each target image's bounding box of non-grey pixels (the
     whole image if it has none)."""
-    pixels = _target_pixels(target)
+    pixels = target_pixels(target)
     height, width = pixels.shape[1:]
     rows, cols = pixels.any(2), pixels.any(1)
     steps = [torch.arange(n, dtype=target.dtype, device=target.device) for n in (height, width)]

@@ -30,10 +30,10 @@ from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import (
     OneShotFCN,
-    _target_pixels,
     load_checkpoint,
     normalize_images,
     save_checkpoint,
+    target_pixels,
 )
 from mani_active_vision.agents.verifier import candidate_crops, square_crops, target_crops
 from mani_active_vision.json_io import save_json
@@ -45,8 +45,9 @@ THRESHOLDS = tuple(round(0.05 * i, 2) for i in range(2, 19))
 
 @dataclass
 class Args:
-    fcn: str = "agents/weights/fcn.pt"
-    """the segmentation network the verifier sits on (its weights are kept as they are)"""
+    fcn: str = "runs/fcn/best.pt"
+    """the segmentation network the verifier sits on, without a verifier (its weights are kept as they are;
+    default: the one scripts/make_fcn.sh trains)"""
     data_dirs: list[str] = field(default_factory=lambda: ["data/rollout128v3/train"])
     """rollout-frame sets (`baselines/collect_rollout_frames.py`: they name what each pixel shows)"""
     run_dir: str = "runs/verifier"
@@ -116,7 +117,7 @@ def build_candidates(model: OneShotFCN, data: dict, args: Args, rng: np.random.G
         scene_rgb, target_rgb = data["scene"][start:stop], data["target"][start:stop]
         masks = model.predict(scene_rgb, target_rgb).numpy()
         scene, target = normalize_images(torch.from_numpy(scene_rgb)), normalize_images(torch.from_numpy(target_rgb))
-        targets = target_crops(target, _target_pixels(target), args.crop)
+        targets = target_crops(target, target_pixels(target), args.crop)
         found = candidate_crops(scene, masks, args.regions, args.crop)
         region_labels = region_targets(found, data["objects"][start:stop])
         groups = [(found["image"], targets[found["image"]], found["scene_crops"], region_labels, True)]
