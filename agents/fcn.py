@@ -41,7 +41,13 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from mani_active_vision.agents import fcn_runtime
-from mani_active_vision.agents.verifier import CandidateVerifier, candidate_crops, keep_verified, target_crops
+from mani_active_vision.agents.verifier import (
+    CandidateVerifier,
+    candidate_crops,
+    keep_verified,
+    near_previous,
+    target_crops,
+)
 from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
@@ -293,16 +299,30 @@ class OneShotFCN(nn.Module):
 
     @torch.inference_mode()
     def predict_with_presence(
-        self, scene_rgb, target_rgb, largest_component: bool = False, runtime: str = "auto"
+        self,
+        scene_rgb,
+        target_rgb,
+        largest_component: bool = False,
+        runtime: str = "auto",
+        previous: torch.Tensor | None = None,
+        thresholds: tuple[float, float] = (0.0, 0.0),
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(`predict`'s mask, presence probability (N,)): the presence head's "target in view" probability, or
         for a model without one 1.0 where the mask is not empty and 0.0 where it is.
+
+        With a verifier, `thresholds` = (acquire, track) are the verifier probabilities a region needs: a new
+        one, and one near the region kept at the previous step (`previous` (N, H, W) bool, that step's masks
+        for the same episodes; `verifier.near_previous`); 0 is the checkpoint's `verifier_threshold`. Tracking
+        (a high bar to acquire, a lower one to keep) holds the target through frames where its score dips,
+        and makes a look-alike's single high score on one frame rarer to act on.
 
         `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graph exported from the current
         weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float rounding); "auto" (default)
         is "onnxruntime" for a model in eval mode on the CPU when it is installed, else "torch"."""
         if runtime not in RUNTIMES:
             raise ValueError(f"runtime {runtime!r} is not one of: {', '.join(RUNTIMES)}")
+        if len(thresholds) != 2 or not all(0 <= t < 1 for t in thresholds):
+            raise ValueError(f"thresholds={thresholds} must be (acquire, track), each in [0, 1) (0: the checkpoint's)")
         scene = uint8_images(scene_rgb, "scene_rgb")
         target = uint8_images(target_rgb, "target_rgb")
         if len(scene) != len(target):
@@ -312,6 +332,8 @@ class OneShotFCN(nn.Module):
         height, width = scene.shape[1:3]
         if height % 8 or width % 8:
             raise ValueError(f"scene_rgb is {height}x{width}: sides must be multiples of 8")
+        if previous is not None and tuple(previous.shape) != (len(scene), height, width):
+            raise ValueError(f"previous has shape {tuple(previous.shape)}, expected {(len(scene), height, width)}")
         device = next(self.parameters()).device
         target = normalize_images(target.to(device))
         if target.shape[2:] != (self.config.target_size,) * 2:
@@ -327,16 +349,26 @@ class OneShotFCN(nn.Module):
             outputs = self.scene_mask(scene.to(device), features)
         mask, presence = outputs
         if self.verifier is not None:  # with `largest_component`, the most probable region: the one kept
-            mask, presence = self.verify(scene.to(device), target, mask, weights, best_only=largest_component)
+            mask, presence = self.verify(
+                scene.to(device), target, mask, weights, largest_component, previous, thresholds
+            )
             return mask, presence
         return (keep_largest_component(mask) if largest_component else mask), presence
 
     def verify(
-        self, scene_rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, weights: tuple, best_only: bool = False
+        self,
+        scene_rgb: torch.Tensor,
+        target: torch.Tensor,
+        mask: torch.Tensor,
+        weights: tuple,
+        best_only: bool = False,
+        previous: torch.Tensor | None = None,
+        thresholds: tuple[float, float] = (0.0, 0.0),
     ):
         """(mask of the candidate regions the verifier accepts (with `best_only`, the most probable of them),
         the best region's probability (N,)) of uint8 scenes (N, H, W, 3), normalised targets (N, 3, h, w) and
-        the segmentation's masks (N, H, W); `weights` is `_weights_key()` (keys the target crop's encoding)."""
+        the segmentation's masks (N, H, W); `weights` is `_weights_key()` (keys the target crop's encoding);
+        `previous`, `thresholds`: `predict_with_presence`'s."""
         crop = self.config.verifier_crop
         candidates = candidate_crops(
             normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
@@ -348,9 +380,11 @@ class OneShotFCN(nn.Module):
             lambda: self.verifier.encoder(target_crops(target, target_pixels(target), crop)),
         )
         logits = self.verifier.score(encoded[candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
-        mask, presence = keep_verified(
-            candidates, logits.sigmoid(), self.config.verifier_threshold, len(scene_rgb), best_only
-        )
+        acquire, track = (t or self.config.verifier_threshold for t in thresholds)
+        threshold = torch.full_like(logits, acquire)
+        if previous is not None:
+            threshold[near_previous(candidates["boxes"], candidates["image"], previous.to(logits.device))] = track
+        mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 
 

@@ -22,6 +22,9 @@ MARGIN = 1.6
 only part of it"""
 MIN_SIDE = 12.0
 """smallest crop side in scene pixels: a speck's crop shows what is around it"""
+TRACK_GROW = 0.5
+"""how far (× its size, on every side) a region may lie from the previous step's kept region and still be
+the same object (`near_previous`): one 5 cm step moves a box by less than its size"""
 
 
 def _conv(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
@@ -116,7 +119,7 @@ def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, cr
 
     scene (N, 3, H, W) normalised images, masks (N, H, W) bool candidate masks. Returns dict(scene_crops
     (M, 3, crop, crop), image (M,) the image each region is in, labels [(H, W) int per image], ids [region
-    labels per image, largest first])."""
+    labels per image, largest first], boxes (M, 4) the regions' pixel boxes)."""
     labels, ids, boxes, image = [], [], [], []
     for i, mask in enumerate(masks):
         image_labels, image_ids = regions(mask, max_regions)
@@ -125,27 +128,38 @@ def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, cr
         boxes.append(region_boxes(image_labels, image_ids))
         image += [i] * len(image_ids)
     image = torch.tensor(image, dtype=torch.long)
-    scene_crops = square_crops(scene[image], torch.cat(boxes).to(scene.device), crop)
-    return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids)
+    boxes = torch.cat(boxes).to(scene.device)
+    scene_crops = square_crops(scene[image], boxes, crop)
+    return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids, boxes=boxes)
 
 
-def keep_verified(
-    candidates: dict, probability: torch.Tensor, threshold: float, num_images: int, best_only: bool = False
-):
-    """(masks (N, H, W) bool of the regions whose probability is at least `threshold` (with `best_only`, only
-    the most probable of them), presence (N,) = the best region's probability, 0 for an image without
-    regions)."""
+def near_previous(boxes: torch.Tensor, image: torch.Tensor, previous: torch.Tensor, grow: float = TRACK_GROW):
+    """(M,) bool: whether each candidate's pixel box (M, 4) meets the box of the region kept in its image at
+    the previous step, grown by `grow` × its size on every side; `previous` (N, H, W) bool masks, empty
+    where nothing was kept."""
+    kept = mask_box(previous)[image]
+    size = kept[:, 2:] - kept[:, :2]
+    low, high = kept[:, :2] - grow * size, kept[:, 2:] + grow * size
+    meets = (boxes[:, :2] < high).all(1) & (boxes[:, 2:] > low).all(1)
+    return meets & previous.flatten(1).any(1)[image]
+
+
+def keep_verified(candidates: dict, probability: torch.Tensor, threshold, num_images: int, best_only: bool = False):
+    """(masks (N, H, W) bool of the regions whose probability is at least `threshold` (a float, or one per
+    region (M,)) (with `best_only`, only the most probable of them), presence (N,) = the best region's
+    probability, 0 for an image without regions)."""
     masks = np.zeros((num_images, *candidates["labels"][0].shape), dtype=bool) if num_images else np.zeros((0, 0, 0))
     presence = torch.zeros(num_images)
     probability = probability.cpu()
+    threshold = torch.as_tensor(threshold, dtype=probability.dtype).cpu().expand_as(probability)
     start = 0
     for i, (labels, ids) in enumerate(zip(candidates["labels"], candidates["ids"])):
         p = probability[start : start + len(ids)]
+        bar = threshold[start : start + len(ids)]
         start += len(ids)
         if len(ids):
             presence[i] = p.max()
-            accepted = [k for k, q in zip(ids, p.tolist()) if q >= threshold]
-            if best_only and accepted:
-                accepted = [ids[int(p.argmax())]]
+            accepted = [(q, k) for k, q, b in zip(ids, p.tolist(), bar.tolist()) if q >= b]
+            accepted = [max(accepted, key=lambda a: a[0])[1]] if best_only and accepted else [k for _, k in accepted]
             masks[i] = np.isin(labels, accepted)
     return torch.from_numpy(masks), presence

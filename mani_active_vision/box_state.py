@@ -31,10 +31,22 @@ class BoxState(gym.ObservationWrapper):
     `segmenter`: for `source="fcn"`, a model with `predict_with_presence(scene_rgb, target_rgb,
     largest_component=True)` -> ((N, H, W) bool, (N,) float), e.g. `agents.fcn.load_pretrained()`
     (`envs.make_env` passes it).
+    `thresholds`: for `source="fcn"` with a verifier, (acquire, track): the verifier probability a new region
+    needs, and one near the region kept at the previous step of the same episode (0: the checkpoint's
+    `verifier_threshold`; `OneShotFCN.predict_with_presence`). (0, 0): every frame judged alone.
     """
 
-    def __init__(self, env: gym.Env, source: str = "ground_truth", with_ee_pos: bool = False, segmenter=None):
+    def __init__(
+        self,
+        env: gym.Env,
+        source: str = "ground_truth",
+        with_ee_pos: bool = False,
+        segmenter=None,
+        thresholds: tuple[float, float] = (0.0, 0.0),
+    ):
         super().__init__(env)
+        if len(thresholds) != 2 or not all(0 <= t < 1 for t in thresholds):
+            raise ValueError(f"thresholds={thresholds} must be (acquire, track), each in [0, 1) (0: the checkpoint's)")
         if source not in BOX_SOURCES:
             raise ValueError(f"source={source!r} is not one of: {', '.join(BOX_SOURCES)}")
         needed = dict(ground_truth="segmentation", fcn="rgb", projection="state_dict")[source]
@@ -54,11 +66,23 @@ class BoxState(gym.ObservationWrapper):
         self.last_observation: dict | None = None
         self.source = source
         self.with_ee_pos = with_ee_pos
+        self.thresholds = tuple(thresholds)
         dim = 7 if with_ee_pos else 4
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
         shape = (dim,) if self._numpy else (env.unwrapped.num_envs, dim)
         self.observation_space = gym.spaces.Box(-2.0, 2.0, shape=shape, dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        """The next observation tracks nothing from the episodes being reset (all, or `options["env_idx"]`)."""
+        if self.last_mask is not None:
+            env_idx = (options or {}).get("env_idx")
+            if env_idx is None:
+                self.last_mask = None
+            else:
+                self.last_mask = self.last_mask.clone()
+                self.last_mask[torch.as_tensor(env_idx, device=self.last_mask.device)] = False
+        return super().reset(seed=seed, options=options)
 
     def observation(self, obs):
         base = self.env.unwrapped
@@ -68,10 +92,12 @@ class BoxState(gym.ObservationWrapper):
             mask = base.projected_target_mask()  # the same mask the task's info came from this step
             presence = mask.flatten(1).any(1).float()
         elif self.source == "fcn":
+            tracking = dict(previous=self.last_mask, thresholds=self.thresholds) if any(self.thresholds) else {}
             mask, presence = self.segmenter.predict_with_presence(
                 batch(obs["sensor_data"]["hand_camera"]["rgb"]),
                 batch(obs["extra"]["target_image"]),
                 largest_component=True,
+                **tracking,
             )
         else:
             seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])

@@ -65,6 +65,12 @@ class EnvConfig:
     observations)"""
     fcn_weights: str = ""
     """FCN checkpoint for box_source=fcn (empty: the shipped agents/weights/fcn.pt)"""
+    fcn_acquire_threshold: float = 0.0
+    """box_source=fcn: the verifier probability a new region needs to become the box (0: the checkpoint's
+    `verifier_threshold`)"""
+    fcn_track_threshold: float = 0.0
+    """box_source=fcn: the verifier probability a region near the previous step's box needs to stay the box
+    (0: the checkpoint's `verifier_threshold`); below the acquiring one, the box tracks the target"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
     occluders: int = 0
@@ -81,6 +87,9 @@ class EnvConfig:
             raise ValueError("with_ee_pos appends to the box state: it needs box_source ground_truth or fcn")
         if not (isinstance(self.image_size, int) and self.image_size >= 8):
             raise ValueError(f"image_size={self.image_size!r} must be an integer of at least 8")
+        for name in ("fcn_acquire_threshold", "fcn_track_threshold"):
+            if not 0 <= getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)!r} must be in [0, 1) (0: the checkpoint's)")
         if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps={self.max_episode_steps!r} must be a positive integer")
 
@@ -127,7 +136,13 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         return env
     if config.box_source == "fcn" and segmenter is None:
         segmenter = load_pretrained(config.fcn_weights or None)
-    return BoxState(env, source=config.box_source, with_ee_pos=config.with_ee_pos, segmenter=segmenter)
+    return BoxState(
+        env,
+        source=config.box_source,
+        with_ee_pos=config.with_ee_pos,
+        segmenter=segmenter,
+        thresholds=(config.fcn_acquire_threshold, config.fcn_track_threshold),
+    )
 
 
 def make_env(config: EnvConfig = EnvConfig(), segmenter=None) -> gym.Env:

@@ -9,6 +9,7 @@ from mani_active_vision.agents.verifier import (
     candidate_crops,
     keep_verified,
     mask_box,
+    near_previous,
     region_boxes,
     regions,
     square_crops,
@@ -62,6 +63,25 @@ def test_keep_verified_keeps_the_regions_over_the_threshold_and_reports_the_best
     assert both[0].sum() == 20 and best[0].sum() == 4 and best[0, 1, 1]  # the smaller region, scored higher
 
 
+def test_tracking_lowers_the_bar_only_for_a_region_near_the_previous_box():
+    masks = np.zeros((2, 32, 32), bool)
+    masks[0, 4:8, 4:8] = masks[0, 20:30, 20:30] = True  # a small region near the tracked box, a larger far one
+    masks[1, 4:8, 4:8] = True
+    found = candidate_crops(torch.zeros(2, 3, 32, 32), masks, max_regions=4, crop=8)
+    previous = torch.zeros(2, 32, 32, dtype=torch.bool)
+    previous[0, 6:12, 6:12] = True  # image 0 kept a box overlapping its small region; image 1 kept nothing
+    near = near_previous(found["boxes"], found["image"], previous)
+    assert near.tolist() == [False, True, False]  # regions: image 0 large, image 0 small, image 1
+    probability = torch.tensor([0.8, 0.6, 0.6])
+    threshold = torch.where(near, 0.5, 0.9)
+    kept, presence = keep_verified(found, probability, threshold, num_images=2, best_only=True)
+    assert kept[0].sum() == 16 and kept[0, 5, 5]  # the tracked region, though the far one scores higher
+    assert not kept[1].any() and presence.tolist() == pytest.approx([0.8, 0.6])
+    far = torch.zeros(1, 32, 32, dtype=torch.bool)
+    far[0, 0:2, 28:32] = True  # 4 wide: grown by 2 px on every side it stays clear of both regions
+    assert not near_previous(found["boxes"][:2], found["image"][:2], far).any()
+
+
 def test_predict_keeps_what_the_verifier_accepts_and_the_checkpoint_carries_it(tmp_path):
     torch.manual_seed(0)
     model = OneShotFCN(FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.5)).eval()
@@ -86,3 +106,29 @@ def test_predict_keeps_what_the_verifier_accepts_and_the_checkpoint_carries_it(t
     assert torch.equal(loaded.predict(scene, target), model.predict(scene, target))
     with pytest.raises(ValueError, match="verifier_crop=12 must be 0 or a positive multiple of 8"):
         FCNConfig(verifier_crop=12)
+
+
+def test_predict_tracks_a_region_whose_score_dips_under_the_threshold():
+    torch.manual_seed(0)
+    model = OneShotFCN(FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.9)).eval()
+    scene = np.random.default_rng(0).integers(0, 256, (1, 64, 64, 3), dtype=np.uint8)
+    target = np.full((1, 64, 64, 3), 128, np.uint8)
+    target[:, 20:40, 24:44] = 200
+    with torch.no_grad():
+        model.up1.bias[1] += 50.0  # one region, the whole image
+        model.verifier.head[-1].weight.zero_()
+        model.verifier.head[-1].bias.zero_()  # it scores 0.5
+    assert not model.predict(scene, target, largest_component=True).any()
+    kept = torch.ones(1, 64, 64, dtype=torch.bool)
+    tracked, presence = model.predict_with_presence(
+        scene, target, largest_component=True, previous=kept, thresholds=(0.0, 0.4)
+    )
+    assert tracked.all() and presence.item() == pytest.approx(0.5)
+    nothing_kept = torch.zeros_like(kept)
+    assert not model.predict_with_presence(scene, target, True, previous=nothing_kept, thresholds=(0, 0.4))[0].any()
+    assert (
+        model.predict(scene, target, True).sum() == 0
+        and model.predict_with_presence(scene, target, True, thresholds=(0.45, 0))[0].all()
+    )  # a lower bar to acquire, no previous mask
+    with pytest.raises(ValueError, match=r"thresholds=\(0.5, 1.2\) must be \(acquire, track\)"):
+        model.predict_with_presence(scene, target, previous=kept, thresholds=(0.5, 1.2))

@@ -459,6 +459,36 @@ def test_box_state_from_fcn_and_its_last_mask():
         BoxState(cached_task(), source="fcn")
 
 
+def test_box_state_tracks_within_an_episode_and_forgets_at_reset():
+    class Recording:  # the shipped FCN, noting what BoxState passes it
+        def __init__(self):
+            self.model, self.calls = load_pretrained(), []
+
+        def predict_with_presence(self, scene, target, largest_component, **tracking):
+            self.calls.append(tracking)
+            return self.model.predict_with_presence(scene, target, largest_component, **tracking)
+
+    segmenter = Recording()
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    env = BoxState(task, source="fcn", segmenter=segmenter, thresholds=(0.97, 0.5))
+    env.reset(seed=0)
+    for action in (0, 0, 0):
+        env.step(action)
+    env.reset(seed=1)
+    previous = [call["previous"] for call in segmenter.calls]
+    assert previous[0] is None and previous[4] is None  # each reset's observation tracks nothing
+    assert all(p is not None and p.shape == (1, 64, 64) for p in previous[1:4])
+    assert all(call["thresholds"] == (0.97, 0.5) for call in segmenter.calls)
+    untracked = BoxState(task, source="fcn", segmenter=segmenter)
+    segmenter.calls.clear()
+    untracked.reset(seed=0)
+    assert segmenter.calls == [{}]  # (0, 0): every frame alone, as before
+    with pytest.raises(ValueError, match="must be \\(acquire, track\\)"):
+        BoxState(task, source="fcn", segmenter=segmenter, thresholds=(0.9, 1.5))
+    with pytest.raises(ValueError, match="fcn_track_threshold=1.5 must be in"):
+        mav.EnvConfig(fcn_track_threshold=1.5)
+
+
 def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives(tmp_path):
     from mani_active_vision.evaluation.rollout_frames import (
         FLOOR,
