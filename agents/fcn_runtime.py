@@ -12,9 +12,9 @@ the mask and the presence probability.
 With a verifier, its per-frame part runs the same way: a second graph, exported from the verifier's
 `encoder` and `score`, takes the candidate regions' crops and their targets' encodings (the target crop's,
 torch's, cached per target image) and gives the logits, for any number of candidates (none: no call). The
-crops stay torch's (`verifier.candidate_crops`): cutting them inside the graph (`grid_sample`) saved
-~0.04 ms a frame, not worth splitting the candidates' code (docs/vision.md, Latency). Both graphs' sessions
-share one cache, dropped together when a weight changes.
+crops stay torch's (`verifier.candidate_crops`): cutting them inside the graph (`grid_sample`) would save
+~0.12 ms on a frame with candidates, but `candidate_crops` would have to hand over boxes instead (docs/vision.md,
+Latency). Both graphs' sessions share one cache, dropped together when a weight changes.
 
 The exporter is torch's TorchScript-based one (`dynamo=False`): ~0.1 s per export, where the torch.export
 one takes ~8 s and needs onnxscript besides. It is deprecated; if a later torch drops it, `predict` under
