@@ -24,8 +24,9 @@ view" for the whole image and `predict` empties the mask where that score is low
 was trained at (`config.image_size`) is resized to it and the scores are resized back (bilinear), so the
 mask always has the scene's size. The target image is resized to `config.target_size` likewise. The
 target's features are computed once per target image and reused while it and the weights stay the same.
-On the CPU, `predict` runs the scene's part through ONNX Runtime (`fcn_runtime`: the graph exported from
-this module's current weights, 2-4x faster one frame at a time); `runtime="torch"` runs the model eagerly.
+On the CPU, `predict` runs the scene's part, and the verifier's, through ONNX Runtime (`fcn_runtime`: graphs
+exported from this module's current weights, 2-4x faster one frame at a time); `runtime="torch"` runs the
+model eagerly.
 """
 
 from __future__ import annotations
@@ -154,7 +155,7 @@ class OneShotFCN(nn.Module):
             self.presence = nn.Sequential(nn.Linear(2 * c3, 32), nn.ReLU(inplace=True), nn.Linear(32, 1))
         self.verifier = CandidateVerifier(config.verifier_crop) if config.verifier_crop else None
         self._cached_target: tuple | None = None  # (weights' key, target, its features): `predict`'s cache
-        self._runtime_cache: tuple | None = None  # (weights' key, {shapes: ONNX Runtime session}): fcn_runtime's
+        self._runtime_cache: tuple | None = None  # (weights' key, {graph, shapes: session}): fcn_runtime's
         self._cached_verifier_target: tuple | None = None  # (weights' key, target, its verifier encoding)
 
     def __getstate__(self):  # copies and pickles leave the ONNX Runtime sessions behind (they cannot be copied)
@@ -316,9 +317,10 @@ class OneShotFCN(nn.Module):
         (a high bar to acquire, a lower one to keep) holds the target through frames where its score dips,
         and makes a look-alike's single high score on one frame rarer to act on.
 
-        `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graph exported from the current
-        weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float rounding); "auto" (default)
-        is "onnxruntime" for a model in eval mode on the CPU when it is installed, else "torch"."""
+        `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graphs (network and verifier)
+        exported from the current weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float
+        rounding); "auto" (default) is "onnxruntime" for a model in eval mode on the CPU when it is installed,
+        else "torch"."""
         if runtime not in RUNTIMES:
             raise ValueError(f"runtime {runtime!r} is not one of: {', '.join(RUNTIMES)}")
         if len(thresholds) != 2 or not all(0 <= t < 1 for t in thresholds):
@@ -341,19 +343,23 @@ class OneShotFCN(nn.Module):
         weights = self._weights_key()
         features = self._target_features_cached(target, weights)
         outputs = None
-        if runtime == "onnxruntime" or (
-            runtime == "auto" and device.type == "cpu" and not self.training and fcn_runtime.available()
-        ):
+        if self._on_onnxruntime(runtime, device):
             outputs = fcn_runtime.scene_mask(self, scene, features, weights, required=runtime == "onnxruntime")
         if outputs is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
             outputs = self.scene_mask(scene.to(device), features)
         mask, presence = outputs
         if self.verifier is not None:  # with `largest_component`, the most probable region: the one kept
             mask, presence = self.verify(
-                scene.to(device), target, mask, weights, largest_component, previous, thresholds
+                scene.to(device), target, mask, weights, largest_component, previous, thresholds, runtime
             )
             return mask, presence
         return (keep_largest_component(mask) if largest_component else mask), presence
+
+    def _on_onnxruntime(self, runtime: str, device: torch.device) -> bool:
+        """Whether `runtime` ("auto", "onnxruntime" or "torch") runs the graphs through ONNX Runtime."""
+        return runtime == "onnxruntime" or (
+            runtime == "auto" and device.type == "cpu" and not self.training and fcn_runtime.available()
+        )
 
     def verify(
         self,
@@ -364,11 +370,13 @@ class OneShotFCN(nn.Module):
         best_only: bool = False,
         previous: torch.Tensor | None = None,
         thresholds: tuple[float, float] = (0.0, 0.0),
+        runtime: str = "auto",
     ):
         """(mask of the candidate regions the verifier accepts (with `best_only`, the most probable of them),
         the best region's probability (N,)) of uint8 scenes (N, H, W, 3), normalised targets (N, 3, h, w) and
         the segmentation's masks (N, H, W); `weights` is `_weights_key()` (keys the target crop's encoding);
-        `previous`, `thresholds`: `predict_with_presence`'s."""
+        `previous`, `thresholds`: `predict_with_presence`'s; `runtime` as there (the crops and the target's
+        encoding stay torch's)."""
         crop = self.config.verifier_crop
         candidates = candidate_crops(
             normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
@@ -379,7 +387,11 @@ class OneShotFCN(nn.Module):
             weights,
             lambda: self.verifier.encoder(target_crops(target, target_pixels(target), crop)),
         )
-        logits = self.verifier.score(encoded[candidates["image"]], self.verifier.encoder(candidates["scene_crops"]))
+        target_encoded, crops, logits = encoded[candidates["image"]], candidates["scene_crops"], None
+        if self._on_onnxruntime(runtime, scene_rgb.device):
+            logits = fcn_runtime.verifier_logits(self, target_encoded, crops, weights, runtime == "onnxruntime")
+        if logits is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
+            logits = self.verifier.score(target_encoded, self.verifier.encoder(crops))
         acquire, track = (t or self.config.verifier_threshold for t in thresholds)
         threshold = torch.full_like(logits, acquire)
         if previous is not None:

@@ -8,13 +8,16 @@ The machine is shared, so timings are noisy: the runtimes are timed in alternati
 same load for both), medians and minima are printed, with the load average, and, as a reference measured
 in the same run, the env's own step time at the same frame size (rgb+segmentation). Last, `predict` timed
 where it runs: inside the steps of the project's env with the FCN box state (`BoxState`, batch 1, random
-directions), where rendering has just filled the caches with other data.
+directions), where rendering has just filled the caches with other data. With a verifier, a third runtime,
+"onnxruntime, verifier on torch", runs the network on ONNX Runtime and the verifier in torch (how `predict`
+ran before the verifier went to ONNX Runtime too).
 
   python baselines/benchmark_fcn.py                      # 128² (the env's default) and 64²
 """
 
 from __future__ import annotations
 
+import copy
 import functools
 import itertools
 import os
@@ -44,6 +47,8 @@ class Args:
     """also time env.step at each size (the reference)"""
     runtimes: list[str] = field(default_factory=lambda: ["torch", "onnxruntime"])
     """`predict`'s runtimes to compare"""
+    verifier_on_torch: bool = True
+    """with a verifier, also time "onnxruntime" with the verifier run by torch"""
     largest_component: bool = True
     """keep each mask's largest region, as BoxState does"""
     episode_steps: int = 200
@@ -93,6 +98,23 @@ def env_step_ms(size: int, repeats: int) -> float:
     return 1000 * float(np.median(times))
 
 
+def verifier_on_torch(model):
+    """A copy of `model` whose verifier runs in torch whatever `predict`'s runtime."""
+    variant = copy.deepcopy(model)
+    verify = variant.verify
+    variant.verify = lambda *args, runtime, **kwargs: verify(*args, runtime="torch", **kwargs)
+    return variant
+
+
+def runtime_variants(model, runtimes: list[str], torch_verifier: bool) -> dict[str, tuple]:
+    """{name: (model, `predict`'s runtime)}: each of `runtimes`, and with `torch_verifier` (and a verifier)
+    "onnxruntime, verifier on torch"."""
+    variants = {r: (model, r) for r in runtimes}
+    if torch_verifier and model.verifier is not None:
+        variants["onnxruntime, verifier on torch"] = (verifier_on_torch(model), "onnxruntime")
+    return variants
+
+
 class TimedSegmenter:
     """`model` with `predict_with_presence` run on `runtime` and timed: what BoxState calls at every step."""
 
@@ -106,12 +128,12 @@ class TimedSegmenter:
         return outputs
 
 
-def in_episode_ms(model, size: int, runtimes: list[str], steps: int, block: int = 5) -> dict[str, np.ndarray]:
+def in_episode_ms(variants: dict[str, tuple], size: int, steps: int, block: int = 5) -> dict[str, np.ndarray]:
     """Milliseconds per `predict` inside env steps (FCN box state, `size`², random directions), one env per
-    runtime, stepped in alternating blocks."""
-    segmenters = {r: TimedSegmenter(model, r) for r in runtimes}
+    variant (`runtime_variants`), stepped in alternating blocks."""
+    segmenters = {name: TimedSegmenter(*variant) for name, variant in variants.items()}
     config = EnvConfig(image_size=size, box_source="fcn", start_pose="search")
-    envs = {r: make_env(config, segmenter=segmenters[r]) for r in runtimes}
+    envs = {name: make_env(config, segmenter=segmenter) for name, segmenter in segmenters.items()}
     rng = np.random.default_rng(0)
     for env in envs.values():
         env.reset(seed=0)
@@ -125,12 +147,13 @@ def in_episode_ms(model, size: int, runtimes: list[str], steps: int, block: int 
                     env.reset()
     for env in envs.values():
         env.close()
-    return {r: 1000 * np.array(segmenters[r].seconds) for r in runtimes}
+    return {name: 1000 * np.array(segmenter.seconds) for name, segmenter in segmenters.items()}
 
 
 def main(args: Args):
     torch.set_num_threads(1)
     model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
+    variants = runtime_variants(model, args.runtimes, args.verifier_on_torch)
     rng = np.random.default_rng(0)
     print(
         f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}; largest_component: {args.largest_component}"
@@ -147,17 +170,20 @@ def main(args: Args):
             targets = rng.integers(
                 0, 256, (2, batch, model.config.target_size, model.config.target_size, 3), dtype=np.uint8
             )
-            predict = functools.partial(model.predict, largest_component=args.largest_component)
-            same_target = {r: functools.partial(predict, scene, targets[0], runtime=r) for r in args.runtimes}
+            predict = {
+                name: functools.partial(m.predict, largest_component=args.largest_component, runtime=r)
+                for name, (m, r) in variants.items()
+            }
+            same_target = {name: functools.partial(p, scene, targets[0]) for name, p in predict.items()}
             new_target = {
-                r: alternate(*(functools.partial(predict, scene, t, runtime=r) for t in targets)) for r in args.runtimes
+                name: alternate(*(functools.partial(p, scene, t) for t in targets)) for name, p in predict.items()
             }  # timed apart from same_target, whose calls would otherwise find the cache holding the other target
             times = {
                 (r, case): 1000 * t / batch
                 for case, calls in (("same", same_target), ("new", new_target))
                 for r, t in time_interleaved(calls, args.repeats).items()
             }
-            for runtime in args.runtimes:
+            for runtime in variants:
                 same, new = times[runtime, "same"], times[runtime, "new"]
                 median = float(np.median(same))
                 print(
@@ -169,7 +195,7 @@ def main(args: Args):
             f"\n`predict` inside env steps, {size}², batch 1, largest component (load average {os.getloadavg()[0]:.2f})"
         )
         print("\n| runtime | ms per step's predict (median) | (min) |\n|---|---|---|")
-        for runtime, ms in in_episode_ms(model, size, args.runtimes, args.episode_steps).items():
+        for runtime, ms in in_episode_ms(variants, size, args.episode_steps).items():
             print(f"| {runtime} | {np.median(ms):.2f} | {ms.min():.2f} |")
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
 

@@ -5,7 +5,7 @@ out, largest component kept, as BoxState calls it), with only the scene's networ
 (`OneShotFCN.scene_mask`) run another way, on one thread. The machine is shared, so the options are timed
 in alternating blocks of calls (each sees the same load); medians and minima, with the load average.
 
-  python baselines/fcn_latency_options.py              # the options and the non-network parts
+  python baselines/fcn_latency_options.py              # the options and the non-network parts (verifier's too)
   python baselines/fcn_latency_options.py --profile    # + torch's layers timed alone, ONNX Runtime per node
   python baselines/fcn_latency_options.py --compile    # + torch.compile (about a minute to compile)
 """
@@ -30,7 +30,14 @@ import tyro
 from torch.profiler import ProfilerActivity, profile
 
 from mani_active_vision.agents import fcn_runtime
-from mani_active_vision.agents.fcn import load_pretrained, normalize_images, uint8_images
+from mani_active_vision.agents.fcn import load_pretrained, normalize_images, target_pixels, uint8_images
+from mani_active_vision.agents.verifier import (
+    candidate_crops,
+    keep_verified,
+    region_boxes,
+    square_crops,
+    target_crops,
+)
 from mani_active_vision.boxes import largest_component
 from mani_active_vision.segmentation_data import SegmentationDataConfig, make_data_env, render_scene_views
 
@@ -86,6 +93,59 @@ def ort_scene_mask(model, scene, features, level=None, threads: int = 1, free_ba
     return lambda s, f: tuple(
         torch.from_numpy(out) for out in session.run(None, dict(zip(names, [s.numpy(), *(t.numpy() for t in f)])))
     )
+
+
+class CroppingVerifier(nn.Module):
+    """The verifier's per-frame part with the crops inside the graph too: the candidates' boxes (M, 4) cut
+    from the normalised scenes (N, 3, H, W) by `grid_sample`, encoded and compared with their targets'
+    encodings (M, C, h, w)."""
+
+    def __init__(self, verifier: nn.Module):
+        super().__init__()
+        self.verifier = verifier
+
+    def forward(self, scene, image, boxes, target_encoded):
+        crops = square_crops(scene[image], boxes, self.verifier.crop)
+        return self.verifier.score(target_encoded, self.verifier.encoder(crops))
+
+
+def verifier_parts(model, scene: np.ndarray, target: np.ndarray, mask: torch.Tensor) -> dict:
+    """The verifier's per-frame parts on `mask`'s candidate regions, each one call to time: as adopted (crops in
+    torch, encoder and comparison on ONNX Runtime), as before (all in torch), and with the crops in the graph."""
+    crop, verifier = model.config.verifier_crop, model.verifier
+    normalized, masks = normalize_images(uint8_images(scene)), mask.numpy()
+    target = normalize_images(uint8_images(target))
+    candidates = candidate_crops(normalized, masks, model.config.verifier_regions, crop)
+    image, crops = candidates["image"], candidates["scene_crops"]
+    boxes = region_boxes(candidates["labels"][0], candidates["ids"][0])
+    encoded = verifier.encoder(target_crops(target, target_pixels(target), crop))[image]
+    weights = model._weights_key()
+    cropping = CroppingVerifier(verifier).eval()
+    example = (normalized, image, boxes, encoded)
+    names = ["scene", "image", "boxes", "target_encoded"]
+    graph = fcn_runtime._export(cropping, example, names, ["logits"], free_batch=True)
+    session = onnxruntime.InferenceSession(graph, fcn_runtime.session_options(1), providers=["CPUExecutionProvider"])
+    feeds = dict(zip(names, (t.numpy() for t in example)))
+    probability = verifier.score(encoded, verifier.encoder(crops)).sigmoid()
+    return {
+        f"verifier: candidate_crops, {len(boxes)} region(s) (scipy label, boxes, crops)": lambda: candidate_crops(
+            normalized, masks, model.config.verifier_regions, crop
+        ),
+        "verifier: square_crops alone (grid_sample)": lambda: square_crops(normalized[image], boxes, crop),
+        "verifier: torch encoder + comparison (before)": lambda: verifier.score(encoded, verifier.encoder(crops)),
+        "verifier: ONNX Runtime encoder + comparison (verifier_logits, adopted)": lambda: fcn_runtime.verifier_logits(
+            model, encoded, crops, weights, True
+        ),
+        "verifier: square_crops + verifier_logits (adopted: crops in torch)": lambda: fcn_runtime.verifier_logits(
+            model, encoded, square_crops(normalized[image], boxes, crop), weights, True
+        ),
+        "verifier: ONNX Runtime crops + encoder + comparison (crops in the graph)": lambda: torch.from_numpy(
+            session.run(None, feeds)[0]
+        ),
+        "verifier: keep_verified": lambda: keep_verified(
+            candidates, probability, model.config.verifier_threshold, 1, True
+        ),
+    }
 
 
 def time_interleaved(calls: dict, repeats: int, block: int = 10) -> dict[str, np.ndarray]:
@@ -202,6 +262,8 @@ def main(args: Args):
         ),
         "ONNX Runtime, all, 1 thread (adopted: predict's default)": (model, "onnxruntime"),
     }
+    if model.verifier is not None:  # the variants above but the last run it in torch
+        variants["ONNX Runtime, verifier on torch (before)"] = (benchmark_fcn.verifier_on_torch(model), "onnxruntime")
     if args.compile:
         start = time.perf_counter()
         compiled = torch.compile(model.scene_mask)
@@ -243,6 +305,9 @@ def main(args: Args):
         "ONNX Runtime: session.run (normalise ... mask)": lambda: session.run(None, feeds),
         "largest_component (scipy.ndimage.label)": lambda: largest_component(mask),
     }
+    if model.verifier is not None:
+        with torch.no_grad():  # the exporter's inputs may not be inference tensors
+            parts.update(verifier_parts(model, scene, target, mask))
     print_table("the parts, timed alone", time_interleaved(parts, args.repeats))
     if args.profile:
         profile_torch(model, scene, target)

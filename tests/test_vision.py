@@ -25,6 +25,7 @@ from mani_active_vision.agents.fcn import (
     soft_iou_loss,
     summarize_counts,
 )
+from mani_active_vision.agents.verifier import regions
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.segmentation_data import (
@@ -190,8 +191,7 @@ def _assert_masks_agree(fast, plain, margin):
 
 
 def _shipped_network() -> OneShotFCN:
-    """The shipped weights' segmentation network alone (the verifier, which runs in torch after it, taken off):
-    what ONNX Runtime runs."""
+    """The shipped weights' segmentation network alone (the verifier taken off)."""
     shipped = load_pretrained()
     network = OneShotFCN(dataclasses.replace(shipped.config, verifier_crop=0)).eval()
     network.load_state_dict({k: v for k, v in shipped.state_dict().items() if not k.startswith("verifier.")})
@@ -252,6 +252,35 @@ def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
     assert all(not torch.equal(a, b) for a, b in zip(masks, masks[1:]))  # each change moved the mask
     copied = copy.deepcopy(model)  # sessions are not copied; the copy builds its own
     assert copied._runtime_cache is None and torch.equal(copied.predict(scene, target), masks[-1])
+
+
+def test_onnxruntime_runs_the_verifier_as_torch_does_on_rendered_frames():
+    model = load_pretrained()  # the two-stage model: network, then the verifier on each candidate region
+    data = _render("unseen", scenes=(900001, 900002), views=4, image_size=128)
+    scene, target = data["scene"], data["target"]
+    candidates = [len(regions(m, 4)[1]) for m in _shipped_network().predict(scene, target).numpy()]
+    assert candidates[0] == 0 and max(candidates) >= 2  # frames with no candidate region and with several
+    model.predict(scene[:1], target[:1], runtime="onnxruntime")
+    assert all(key[0] != "verifier" for key in model._runtime_cache[1])  # no region: the session is not called
+
+    def agree():  # ONNX Runtime's masks and presence against torch's, one frame at a time and batched
+        for largest in (False, True):
+            for frames in [slice(i, i + 1) for i in range(len(scene))] + [slice(None)]:
+                mask, presence = model.predict_with_presence(scene[frames], target[frames], largest, "onnxruntime")
+                plain_mask, plain_presence = model.predict_with_presence(
+                    scene[frames], target[frames], largest, "torch"
+                )
+                assert torch.equal(mask, plain_mask)
+                torch.testing.assert_close(presence, plain_presence, rtol=0, atol=1e-4)
+        return model.predict_with_presence(scene, target, runtime="onnxruntime")
+
+    mask, presence = agree()
+    assert any(key[0] == "verifier" for key in model._runtime_cache[1])
+    scored = presence > 0  # the frames with candidate regions: some accepted, some rejected
+    assert mask.any((1, 2)).sum() >= 2 and (scored & ~mask.any((1, 2))).any()
+    with torch.no_grad():
+        model.verifier.head[-1].bias.sub_(2.0)  # a stricter verifier: its graph is rebuilt
+    assert (agree()[1][scored] < presence[scored]).all()
 
 
 DISCRIMINATING = dict(full_res_channels=4, target_pooling="masked", shape_kernel=3, presence_head=True)
