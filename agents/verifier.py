@@ -129,7 +129,10 @@ def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, cr
         image += [i] * len(image_ids)
     image = torch.tensor(image, dtype=torch.long)
     boxes = torch.cat(boxes).to(scene.device)
-    scene_crops = square_crops(scene[image], boxes, crop)
+    if len(image):
+        scene_crops = square_crops(scene[image], boxes, crop)
+    else:  # no region anywhere (~40% of an episode's frames): no sampling to set up
+        scene_crops = scene.new_zeros((0, scene.shape[1], crop, crop))
     return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids, boxes=boxes)
 
 

@@ -8,7 +8,8 @@ rollout frame (its `verifier_regions` largest), each labelled "target" when most
 target; and, for more look-alikes and more views of targets, every object in view with at least 4 pixels
 around its true box, moved and scaled a little (as a proposal would be); at the frames' 128² and
 area-downsampled to 64² (`--scales`: the camera sizes the agents use). The frames' scene seeds split them:
-every 10th scene is validation. Binary cross-entropy, both crops mirrored together half the time. The
+every 10th scene is validation. Binary cross-entropy, both crops mirrored together half the time (and, with
+`--rotate`, turned together). The
 threshold is the one with the best accuracy on the validation frames' FCN regions; the best epoch by the
 same. Augmented (`augment`) and weight-decayed: without, it learnt the training objects (validation accuracy
 best after one epoch, then falling as the training loss fell). Saves `best.pt`: the FCN's checkpoint with `verifier_crop` set and the verifier's weights.
@@ -58,6 +59,8 @@ class Args:
     """also train on every object in view around its (jittered) true box"""
     scales: tuple[int, ...] = (1, 2)
     """the frames also area-downsampled by these factors (2: the 64² camera the DQN's env config uses)"""
+    rotate: float = 0.0
+    """degrees: both crops of a pair also turned by one random angle up to this (0: not turned)"""
     epochs: int = 12
     batch_size: int = 128
     lr: float = 1e-3
@@ -134,7 +137,9 @@ def build_candidates(model: OneShotFCN, data: dict, args: Args, rng: np.random.G
     return {k: torch.cat(v) for k, v in parts.items()}
 
 
-def augment(target: torch.Tensor, scene: torch.Tensor, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+def augment(
+    target: torch.Tensor, scene: torch.Tensor, rng: np.random.Generator, rotate: float = 0.0
+) -> tuple[torch.Tensor, torch.Tensor]:
     """What keeps "same object" from being learnt as "one of the 800 training objects": both crops get the
     same mirror, the same permutation of the colour channels and the same brightness (so the pair stays a
     pair of one object or of two), and the candidate's crop a shift of up to 2 px (as a proposal's box
@@ -149,6 +154,12 @@ def augment(target: torch.Tensor, scene: torch.Tensor, rng: np.random.Generator)
     target, scene = (target + 0.5) * gain - 0.5, (scene + 0.5) * gain - 0.5
     dy, dx = rng.integers(-2, 3, 2)
     scene = torch.roll(scene, shifts=(int(dy), int(dx)), dims=(2, 3))
+    if rotate:  # one turn for both crops; the corners turned in are 0, the crops' own outside value
+        angle = torch.from_numpy(np.radians(rng.uniform(-rotate, rotate, n))).float()
+        cos, sin, zero = angle.cos(), angle.sin(), torch.zeros(n)
+        theta = torch.stack([torch.stack([cos, -sin, zero], 1), torch.stack([sin, cos, zero], 1)], 1)
+        grid = F.affine_grid(theta, list(target.shape), align_corners=False)
+        target, scene = (F.grid_sample(x, grid, align_corners=False) for x in (target, scene))
     return target, scene
 
 
@@ -200,7 +211,9 @@ def main(args: Args):
         losses, epoch_started = [], time.time()
         for step in tqdm(range(steps), desc=f"epoch {epoch + 1}/{args.epochs}", leave=False):
             idx = order[step * args.batch_size : (step + 1) * args.batch_size]
-            target, scene = augment(candidates["target"][idx].float(), candidates["scene"][idx].float(), rng)
+            target, scene = augment(
+                candidates["target"][idx].float(), candidates["scene"][idx].float(), rng, args.rotate
+            )
             loss = F.binary_cross_entropy_with_logits(verifier(target, scene), labels[idx], pos_weight=pos_weight)
             optimizer.zero_grad()
             loss.backward()

@@ -1,0 +1,120 @@
+"""Why does the servo fail on the FCN's box where it succeeds on the ground truth's? Both run on the same
+held-out episodes; every episode the ground-truth servo solves and the FCN servo does not is put in one class
+by what the FCN's box lay on, step by step (the wrist camera's segmentation names each pixel's object):
+
+- "on a look-alike": the box lay on another object on more steps than on the target (that object's relation
+  to the target is counted: same colour, same shape, other);
+- "target missed": the target was in view (>= 20 px) and the box was empty on most of those steps;
+- "on the target, not reached": the box lay mostly on the target and success never came;
+- "target never in view": never >= 20 px of it.
+
+    python baselines/servo_failures.py --episodes 50 --env.fcn-acquire-threshold 0.97 --env.fcn-track-threshold 0.5
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import tyro
+from tqdm import tqdm
+
+from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import eval_seeds
+from mani_active_vision.evaluation.rollout import run_episode
+from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
+
+SEEN_PX = 20
+"""target pixels that count as "in view" """
+
+
+@dataclass
+class Args:
+    episodes: int = 50
+    seed: int = 1_000_000
+    """first episode's seed (held out)"""
+    env: EnvConfig = field(
+        default_factory=lambda: EnvConfig(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
+    )
+    """the FCN servo's env; the reference is the same with the ground-truth box"""
+
+
+def box_steps(env, seed: int) -> tuple[bool, list[dict]]:
+    """(success, per observation: target pixels in view, the box's pixels on the target, the object the box
+    mostly lies on (slot + 1, 0 floor, or None without a box), the box's presence score) of the servo."""
+    box_state = env
+    while type(box_state).__name__ != "BoxState":
+        box_state = box_state.env
+    base, steps = env.unwrapped, []
+
+    def note(obs, info):
+        segmentation = box_state.last_observation["sensor_data"]["hand_camera"]["segmentation"][0, ..., 0]
+        objects = object_map(base, segmentation.cpu().numpy())
+        box = box_state.last_mask[0].cpu().numpy()
+        on = np.bincount(objects[box], minlength=256).argmax() if box.any() else None
+        steps.append(
+            dict(
+                target_px=int((objects == 1).sum()),
+                on=None if on is None else int(on),
+                presence=float(box_state.last_presence[0]),
+            )
+        )
+
+    trajectory = run_episode(env, make_policy("servo", env), seed, on_step=note)
+    return bool(np.any(trajectory.success)), steps
+
+
+def classify(steps: list[dict]) -> str:
+    with_box = [s for s in steps if s["on"] is not None]
+    on_target = sum(s["on"] == 1 for s in with_box)
+    if sum(s["on"] not in (0, 1) for s in with_box) > on_target:
+        return "on a look-alike"
+    in_view = [s for s in steps if s["target_px"] >= SEEN_PX]
+    if not in_view:
+        return "target never in view"
+    if sum(s["on"] is None for s in in_view) > len(in_view) / 2:
+        return "target missed"
+    return "on the target, not reached"
+
+
+def main(args: Args):
+    if args.env.box_source != "fcn":
+        raise ValueError(f"--env.box-source is {args.env.box_source!r}: this compares the FCN's box (fcn)")
+    fcn_env = make_env(args.env)
+    truth_env = make_env(dataclasses.replace(args.env, box_source="ground_truth"))
+    classes, relations, presences, successes = collections.Counter(), collections.Counter(), [], [0, 0]
+    for seed in tqdm(list(eval_seeds(args.episodes, args.seed)), desc="episodes"):
+        truth_ok = bool(np.any(run_episode(truth_env, make_policy("servo", truth_env), seed).success))
+        fcn_ok, steps = box_steps(fcn_env, seed)
+        successes[0] += truth_ok
+        successes[1] += fcn_ok
+        if not truth_ok or fcn_ok:
+            continue
+        kind = classify(steps)
+        classes[kind] += 1
+        if kind == "on a look-alike":
+            base = fcn_env.unwrapped
+            slot_kinds = slot_relations(base.object_names[0], base.object_colors[0])
+            on = collections.Counter(s["on"] for s in steps if s["on"] not in (None, 0, 1)).most_common(1)[0][0]
+            relations[RELATIONS[int(slot_kinds[on - 1])] if on <= len(slot_kinds) else "floor or robot"] += 1
+            presences += [s["presence"] for s in steps if s["on"] == on]
+    print(
+        f"servo success on {args.episodes} episodes from {args.seed}: ground truth {successes[0] / args.episodes:.2f}, FCN {successes[1] / args.episodes:.2f}"
+    )
+    print(f"solved on the ground truth's box and not on the FCN's: {sum(classes.values())}")
+    for kind in ("on a look-alike", "target missed", "on the target, not reached", "target never in view"):
+        print(f"  {kind}: {classes[kind]}")
+    if relations:
+        print(f"  look-alikes by relation: {dict(relations)}")
+        print(
+            f"  their boxes' presence score: median {np.median(presences):.2f}, 10th percentile {np.percentile(presences, 10):.2f}"
+        )
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    main(tyro.cli(Args))

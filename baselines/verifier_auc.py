@@ -1,0 +1,109 @@
+"""How well does the verifier tell the target's regions from a look-alike's, by region size? On rollout frames
+(`collect_rollout_frames.py`: they name each pixel's object), every candidate region of the segmentation
+network (its `verifier_regions` largest) is scored by the verifier, and, for comparison, by the silhouette
+IoU of the region against the target image's (`boxes.silhouette`: outline alone). ROC AUC of the target's
+regions against same-colour look-alikes' and against every other region, by the region's size.
+
+    python baselines/verifier_auc.py --weights agents/weights/fcn.pt --data-dir data/rollout128/test_unseen
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import tyro
+from tqdm import tqdm
+
+from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
+from mani_active_vision.agents.verifier import candidate_crops, target_crops
+from mani_active_vision.boxes import silhouette, silhouette_iou
+from mani_active_vision.evaluation.rollout_frames import RELATIONS
+from mani_active_vision.segmentation_data import load_segmentation_data
+
+SIZE_BINS = (1, 20, 100, 400, 1600, 10**9)
+"""edges of a region's size, pixels"""
+
+
+@dataclass
+class Args:
+    weights: str = "agents/weights/fcn.pt"
+    """an FCN checkpoint with a verifier"""
+    data_dir: str = "data/rollout128/test_unseen"
+
+
+def auc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """P(a positive scores above a negative), ties counted half."""
+    if len(positive) == 0 or len(negative) == 0:
+        return float("nan")
+    diff = positive[:, None] - negative[None, :]
+    return float((diff > 0).mean() + 0.5 * (diff == 0).mean())
+
+
+def network_alone(model: OneShotFCN) -> OneShotFCN:
+    """The segmentation network of a two-stage model, without its verifier: the candidates' source."""
+    network = OneShotFCN(dataclasses.replace(model.config, verifier_crop=0)).eval()
+    network.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("verifier.")})
+    return network
+
+
+@torch.inference_mode()
+def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int = 64) -> dict[str, np.ndarray]:
+    """Per candidate region of `network`: size, what it lies on ("target" or a relation, "floor or robot"),
+    `model`'s verifier probability, silhouette IoU."""
+    crop, rows = model.config.verifier_crop, dict(size=[], kind=[], probability=[], silhouette=[])
+    for start in tqdm(range(0, len(data["scene"]), batch), desc="regions", leave=False):
+        scene_rgb, target_rgb = data["scene"][start : start + batch], data["target"][start : start + batch]
+        masks = network.predict(scene_rgb, target_rgb, runtime="torch").numpy()
+        scene, target = normalize_images(torch.from_numpy(scene_rgb)), normalize_images(torch.from_numpy(target_rgb))
+        found = candidate_crops(scene, masks, model.config.verifier_regions, crop)
+        if not len(found["image"]):
+            continue
+        pixels = target_pixels(target)
+        encoded = model.verifier.encoder(target_crops(target, pixels, crop))
+        probability = model.verifier.score(encoded[found["image"]], model.verifier.encoder(found["scene_crops"]))
+        rows["probability"] += probability.sigmoid().tolist()
+        for i, (labels, ids) in enumerate(zip(found["labels"], found["ids"])):
+            objects, relations = data["objects"][start + i], data["relations"][start + i]
+            picture = silhouette(pixels[i].numpy())
+            for k in ids:
+                region = labels == k
+                on = int(np.bincount(objects[region], minlength=256).argmax())
+                kind = RELATIONS[int(relations[on - 1])] if 1 <= on <= len(relations) else "floor or robot"
+                rows["size"].append(int(region.sum()))
+                rows["kind"].append(kind)
+                rows["silhouette"].append(silhouette_iou(silhouette(region), picture))
+    return {k: np.array(v) for k, v in rows.items()}
+
+
+def main(args: Args):
+    torch.set_num_threads(1)
+    model, _ = load_checkpoint(args.weights)
+    if not model.config.verifier_crop:
+        raise ValueError(f"{args.weights} has no verifier (verifier_crop=0)")
+    rows = region_scores(model.eval(), network_alone(model), load_segmentation_data(args.data_dir))
+    print(f"{len(rows['size'])} candidate regions on {args.data_dir}, {args.weights}")
+    print(
+        "| region px | target | same colour | others | AUC vs same colour: verifier | silhouette | AUC vs all: verifier |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for low, high in zip(SIZE_BINS[:-1], SIZE_BINS[1:]):
+        sized = (rows["size"] >= low) & (rows["size"] < high)
+        target, same_colour = sized & (rows["kind"] == "target"), sized & (rows["kind"] == "same colour")
+        others = sized & ~target
+        cells = [
+            auc(rows["probability"][target], rows["probability"][same_colour]),
+            auc(rows["silhouette"][target], rows["silhouette"][same_colour]),
+            auc(rows["probability"][target], rows["probability"][others]),
+        ]
+        print(
+            f"| {low}–{high if high < 10**9 else '∞'} | {target.sum()} | {same_colour.sum()} | {others.sum()} | "
+            + " | ".join(f"{c:.3f}" for c in cells)
+            + " |"
+        )
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
