@@ -107,8 +107,12 @@ def downsample(data: dict, factor: int) -> dict:
     if factor == 1:
         return data
     n, size = len(data["scene"]), data["scene"].shape[1] // factor
-    blocks = data["scene"].reshape(n, size, factor, size, factor, 3).astype(np.float32).mean((2, 4))
-    return dict(data, scene=np.round(blocks).astype(np.uint8), objects=data["objects"][:, ::factor, ::factor])
+    scene = np.empty((n, size, size, 3), np.uint8)
+    for start in range(0, n, 1000):  # in chunks: the float copy of 39,000 frames at once would be 7.7 GB
+        chunk = data["scene"][start : start + 1000]
+        blocks = chunk.reshape(len(chunk), size, factor, size, factor, 3).astype(np.float32).mean((2, 4))
+        scene[start : start + 1000] = np.round(blocks)
+    return dict(data, scene=scene, objects=data["objects"][:, ::factor, ::factor])
 
 
 @torch.inference_mode()
@@ -181,14 +185,18 @@ def main(args: Args):
         if "objects" not in data:
             raise ValueError(f"{data_dir!r} is not a rollout-frame set (no object maps): collect_rollout_frames.py")
     data = {k: np.concatenate([d[k] for d in sets]) for k in ("scene", "target", "objects", "scene_seed")}
+    del sets  # the frames are held once (4 sets of 9,750: ~3 GB)
     started = time.time()
     per_scale = [build_candidates(fcn, downsample(data, factor), args, rng) for factor in args.scales]
     candidates = {k: torch.cat([c[k] for c in per_scale]) for k in per_scale[0]}
+    del per_scale
     val_frame = torch.from_numpy(data["scene_seed"] % 10 == 0)[candidates["frame"]]
+    num_frames = len(data["scene"])
+    del data  # training needs only the crops
     train_idx, val_idx = torch.nonzero(~val_frame)[:, 0], torch.nonzero(val_frame & candidates["fcn"])[:, 0]
     labels = candidates["label"]
     print(
-        f"{len(labels)} candidates from {len(data['scene'])} frames at scales {args.scales} in {time.time() - started:.0f} s: train "
+        f"{len(labels)} candidates from {num_frames} frames at scales {args.scales} in {time.time() - started:.0f} s: train "
         f"{len(train_idx)} ({labels[train_idx].mean():.2f} target), validation (FCN regions) {len(val_idx)} "
         f"({labels[val_idx].mean():.2f} target)"
     )
