@@ -405,3 +405,20 @@ def test_servo_demonstrations_fill_the_buffer_before_the_dqn_acts(tmp_path):
     assert first["demo"] and not second["demo"]
     assert first["learner_steps"] > 0  # the servo's steps after the hand-over are stored as the learner's
     assert result["transitions"] == 2 * (first["learner_steps"] + second["learner_steps"])  # mirrored too
+
+
+def test_servo_failures_sorts_a_lost_episode_by_what_the_box_lay_on(monkeypatch):
+    spec = importlib.util.spec_from_file_location(
+        "servo_failures", os.path.join(ROOT, "baselines", "servo_failures.py")
+    )
+    failures = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "servo_failures", failures)
+    spec.loader.exec_module(failures)
+
+    def steps(*pairs):  # (target pixels in view, what the box lies on: slot + 1, 0 floor, None no box)
+        return [dict(target_px=px, on=on, presence=0.9) for px, on in pairs]
+
+    assert failures.classify(steps((0, 3), (0, 3), (30, 1), (40, 3))) == "on a look-alike"
+    assert failures.classify(steps((0, None), (25, None), (30, None), (40, 1))) == "target missed"
+    assert failures.classify(steps((0, None), (25, 1), (30, 1), (40, None))) == "on the target, not reached"
+    assert failures.classify(steps((5, None), (10, 0), (19, None))) == "target never in view"
