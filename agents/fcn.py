@@ -350,7 +350,14 @@ class OneShotFCN(nn.Module):
         mask, presence = outputs
         if self.verifier is not None:  # with `largest_component`, the most probable region: the one kept
             mask, presence = self.verify(
-                scene.to(device), target, mask, weights, largest_component, previous, thresholds, runtime
+                scene.to(device),
+                target,
+                mask,
+                weights,
+                best_only=largest_component,
+                previous=previous,
+                thresholds=thresholds,
+                runtime=runtime,
             )
             return mask, presence
         return (keep_largest_component(mask) if largest_component else mask), presence
