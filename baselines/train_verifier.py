@@ -59,6 +59,10 @@ class Args:
     """also train on every object in view around its (jittered) true box"""
     scales: tuple[int, ...] = (1, 2)
     """the frames also area-downsampled by these factors (2: the 64² camera the DQN's env config uses)"""
+    threshold: float = 0.0
+    """the verifier threshold saved with the weights (0: the one with the best validation accuracy). The epoch
+    is chosen by validation accuracy either way; a fixed bar is for control, which needs few false positives
+    more than the best accuracy (docs/vision.md)"""
     rotate: float = 0.0
     """degrees: both crops of a pair also turned by one random angle up to this (0: not turned)"""
     epochs: int = 12
@@ -176,6 +180,8 @@ def main(args: Args):
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
+    if not 0 <= args.threshold < 1:
+        raise ValueError(f"--threshold {args.threshold} must be in [0, 1) (0: the best on validation)")
     os.makedirs(args.run_dir, exist_ok=True)
     fcn, _ = load_checkpoint(args.fcn)
     if fcn.config.verifier_crop:
@@ -250,10 +256,14 @@ def main(args: Args):
         )
         if accuracy[threshold] > best[0]:
             best = (accuracy[threshold], threshold)
-            model.config = dataclasses.replace(config, verifier_threshold=threshold)
+            model.config = dataclasses.replace(config, verifier_threshold=args.threshold or threshold)
             save_checkpoint(os.path.join(args.run_dir, "best.pt"), model, epoch=epoch + 1, args=asdict(args))
         save_json(history, os.path.join(args.run_dir, "history.json"))
-    print(f"best validation accuracy {best[0]:.3f} at threshold {best[1]:.2f}: {os.path.join(args.run_dir, 'best.pt')}")
+    saved = args.threshold or best[1]
+    print(
+        f"best validation accuracy {best[0]:.3f} at threshold {best[1]:.2f}, saved with threshold {saved:.2f}: "
+        f"{os.path.join(args.run_dir, 'best.pt')}"
+    )
 
 
 if __name__ == "__main__":

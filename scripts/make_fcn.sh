@@ -18,15 +18,17 @@ $PY baselines/collect_segmentation_data.py --workers $WORKERS --out-dir $DATA/te
 # the defaults of train_fcn.py are the segmentation network's recipe: 12 epochs, flips, cross-entropy + soft IoU
 $PY baselines/train_fcn.py --data-dir $DATA --run-dir runs/fcn
 # frames from rollouts on train objects (the servo on this network's box walks up to its look-alikes);
-# two collections side by side, one per core
+# four collections, two at a time side by side, one per core
 SOURCES="servo_sky explore_servo_sky random_sky random_search servo_fcn_sky"
-$PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/train_a --config.object-set train --config.seed 500000 \
-  --config.episodes-per-source 75 --config.sources $SOURCES --config.fcn-weights runs/fcn/best.pt &
-FIRST=$!
-$PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/train_b --config.object-set train --config.seed 600000 \
-  --config.episodes-per-source 75 --config.sources $SOURCES --config.fcn-weights runs/fcn/best.pt &
-wait $FIRST; wait $!
-$PY baselines/train_verifier.py --fcn runs/fcn/best.pt --data-dirs $ROLLOUT/train_a $ROLLOUT/train_b --run-dir runs/verifier
+collect() {
+  $PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/train_$1 --config.object-set train --config.seed $2 \
+    --config.episodes-per-source 75 --config.sources $SOURCES --config.fcn-weights runs/fcn/best.pt
+}
+collect a 500000 & FIRST=$!; collect b 600000 & wait $FIRST; wait $!
+collect c 700000 & FIRST=$!; collect d 800000 & wait $FIRST; wait $!
+# the verifier: pairs also turned together (up to 45°), saved with the bar control needs (0.9)
+$PY baselines/train_verifier.py --fcn runs/fcn/best.pt --data-dirs $ROLLOUT/train_a $ROLLOUT/train_b \
+  $ROLLOUT/train_c $ROLLOUT/train_d --rotate 45 --threshold 0.9 --run-dir runs/verifier
 cp runs/verifier/best.pt agents/weights/fcn.pt
 [ -f $ROLLOUT/test_unseen/manifest.json ] || $PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/test_unseen
 $PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $DATA/test_train $DATA/test_unseen --largest-component
