@@ -49,6 +49,7 @@ from mani_active_vision.agents.verifier import (
     near_previous,
     target_crops,
 )
+from mani_active_vision.box_state import check_thresholds
 from mani_active_vision.boxes import largest_component as keep_largest_component
 from mani_active_vision.boxes import mask_to_box
 
@@ -228,6 +229,13 @@ class OneShotFCN(nn.Module):
     def forward(self, scene: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         return self.segment(scene, self.target_features(target))
 
+    def network_alone(self) -> OneShotFCN:
+        """A copy of the segmentation network without its verifier, in eval mode: the candidates' source (and
+        the paper's design)."""
+        network = OneShotFCN(dataclasses.replace(self.config, verifier_crop=0)).eval()
+        network.load_state_dict({k: v for k, v in self.state_dict().items() if not k.startswith("verifier.")})
+        return network
+
     def _weights_key(self) -> tuple:
         """Which weights (and config: a new `presence_threshold`) the model holds: any in-place change of a
         parameter or buffer (an optimiser step, `load_state_dict`) bumps its `_version`, a replaced one has a
@@ -323,8 +331,7 @@ class OneShotFCN(nn.Module):
         else "torch"."""
         if runtime not in RUNTIMES:
             raise ValueError(f"runtime {runtime!r} is not one of: {', '.join(RUNTIMES)}")
-        if len(thresholds) != 2 or not all(0 <= t < 1 for t in thresholds):
-            raise ValueError(f"thresholds={thresholds} must be (acquire, track), each in [0, 1) (0: the checkpoint's)")
+        check_thresholds(thresholds)
         scene = uint8_images(scene_rgb, "scene_rgb")
         target = uint8_images(target_rgb, "target_rgb")
         if len(scene) != len(target):

@@ -46,10 +46,7 @@ class Args:
 def box_steps(env, seed: int) -> tuple[bool, list[dict]]:
     """(success, per observation: target pixels in view, the box's pixels on the target, the object the box
     mostly lies on (slot + 1, 0 floor, or None without a box), the box's presence score) of the servo."""
-    box_state = env
-    while type(box_state).__name__ != "BoxState":
-        box_state = box_state.env
-    base, steps = env.unwrapped, []
+    box_state, base, steps = env, env.unwrapped, []  # make_env's outermost wrapper is the BoxState
 
     def note(obs, info):
         segmentation = box_state.last_observation["sensor_data"]["hand_camera"]["segmentation"][0, ..., 0]

@@ -19,7 +19,7 @@ import tyro
 from mani_skill.utils.structs import Pose
 from tqdm import tqdm
 
-from mani_active_vision.boxes import silhouette, silhouette_iou
+from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
 from mani_active_vision.evaluation.views import aimed_views
@@ -38,14 +38,6 @@ class Args:
     heights: tuple[float, ...] = (0.2, 0.3, 0.45, 0.65)
     object_set: str = "unseen"
     image_size: int = 128
-
-
-def auc(positive: np.ndarray, negative: np.ndarray) -> float:
-    """P(a positive scores above a negative), ties counted half."""
-    if len(positive) == 0 or len(negative) == 0:
-        return float("nan")
-    diff = positive[:, None] - negative[None, :]
-    return float((diff > 0).mean() + 0.5 * (diff == 0).mean())
 
 
 def target_image_silhouettes(base) -> dict[str, np.ndarray]:
@@ -105,7 +97,7 @@ def main(args: Args):
             print(
                 f"| {lo}–{hi if hi < 10**9 else '…'} | {int(pos.sum())} | {int(neg.sum())} | {name} | "
                 f"{rows[pos, column].mean():.2f} | {rows[neg, column].mean():.2f} | "
-                f"{auc(rows[pos, column], rows[neg, column]):.2f} |"
+                f"{roc_auc(rows[pos, column], rows[neg, column]):.2f} |"
             )
 
 

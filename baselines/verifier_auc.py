@@ -9,7 +9,6 @@ regions against same-colour look-alikes' and against every other region, by the 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +18,7 @@ from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
 from mani_active_vision.agents.verifier import candidate_crops, target_crops
-from mani_active_vision.boxes import silhouette, silhouette_iou
+from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou
 from mani_active_vision.evaluation.rollout_frames import RELATIONS
 from mani_active_vision.segmentation_data import load_segmentation_data
 
@@ -32,21 +31,6 @@ class Args:
     weights: str = "agents/weights/fcn.pt"
     """an FCN checkpoint with a verifier"""
     data_dir: str = "data/rollout128/test_unseen"
-
-
-def auc(positive: np.ndarray, negative: np.ndarray) -> float:
-    """P(a positive scores above a negative), ties counted half."""
-    if len(positive) == 0 or len(negative) == 0:
-        return float("nan")
-    diff = positive[:, None] - negative[None, :]
-    return float((diff > 0).mean() + 0.5 * (diff == 0).mean())
-
-
-def network_alone(model: OneShotFCN) -> OneShotFCN:
-    """The segmentation network of a two-stage model, without its verifier: the candidates' source."""
-    network = OneShotFCN(dataclasses.replace(model.config, verifier_crop=0)).eval()
-    network.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("verifier.")})
-    return network
 
 
 @torch.inference_mode()
@@ -83,7 +67,7 @@ def main(args: Args):
     model, _ = load_checkpoint(args.weights)
     if not model.config.verifier_crop:
         raise ValueError(f"{args.weights} has no verifier (verifier_crop=0)")
-    rows = region_scores(model.eval(), network_alone(model), load_segmentation_data(args.data_dir))
+    rows = region_scores(model.eval(), model.network_alone(), load_segmentation_data(args.data_dir))
     print(f"{len(rows['size'])} candidate regions on {args.data_dir}, {args.weights}")
     print(
         "| region px | target | same colour | others | AUC vs same colour: verifier | silhouette | AUC vs all: verifier |"
@@ -94,9 +78,9 @@ def main(args: Args):
         target, same_colour = sized & (rows["kind"] == "target"), sized & (rows["kind"] == "same colour")
         others = sized & ~target
         cells = [
-            auc(rows["probability"][target], rows["probability"][same_colour]),
-            auc(rows["silhouette"][target], rows["silhouette"][same_colour]),
-            auc(rows["probability"][target], rows["probability"][others]),
+            roc_auc(rows["probability"][target], rows["probability"][same_colour]),
+            roc_auc(rows["silhouette"][target], rows["silhouette"][same_colour]),
+            roc_auc(rows["probability"][target], rows["probability"][others]),
         ]
         print(
             f"| {low}–{high if high < 10**9 else '∞'} | {target.sum()} | {same_colour.sum()} | {others.sum()} | "

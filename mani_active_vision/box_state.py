@@ -45,8 +45,7 @@ class BoxState(gym.ObservationWrapper):
         thresholds: tuple[float, float] = (0.0, 0.0),
     ):
         super().__init__(env)
-        if len(thresholds) != 2 or not all(0 <= t < 1 for t in thresholds):
-            raise ValueError(f"thresholds={thresholds} must be (acquire, track), each in [0, 1) (0: the checkpoint's)")
+        check_thresholds(thresholds)
         if source not in BOX_SOURCES:
             raise ValueError(f"source={source!r} is not one of: {', '.join(BOX_SOURCES)}")
         needed = dict(ground_truth="segmentation", fcn="rgb", projection="state_dict")[source]
@@ -110,6 +109,12 @@ class BoxState(gym.ObservationWrapper):
         if self._numpy:
             return state[0].cpu().numpy()
         return state
+
+
+def check_thresholds(thresholds) -> None:
+    """The verifier's (acquire, track) probabilities, each in [0, 1), 0 the checkpoint's; else a ValueError."""
+    if len(thresholds) != 2 or not all(0 <= t < 1 for t in thresholds):
+        raise ValueError(f"thresholds={thresholds} must be (acquire, track), each in [0, 1) (0: the checkpoint's)")
 
 
 def _wrapper_chain(env):

@@ -87,3 +87,13 @@ def silhouette(mask: np.ndarray, side: int = 32) -> np.ndarray:
 def silhouette_iou(a: np.ndarray, b: np.ndarray) -> float:
     """IoU of two silhouettes (bool arrays of one shape)."""
     return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def roc_auc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """How well one score tells two sets apart: P(a positive scores above a negative), ties counted half; NaN
+    when either set is empty."""
+    positive, negative = np.asarray(positive), np.asarray(negative)
+    if len(positive) == 0 or len(negative) == 0:
+        return float("nan")
+    diff = positive[:, None] - negative[None, :]
+    return float((diff > 0).mean() + 0.5 * (diff == 0).mean())

@@ -1,7 +1,6 @@
 """The one-shot segmentation FCN, its data, its shipped weights and the box state built on it."""
 
 import copy
-import dataclasses
 import warnings
 
 import numpy as np
@@ -192,10 +191,7 @@ def _assert_masks_agree(fast, plain, margin):
 
 def _shipped_network() -> OneShotFCN:
     """The shipped weights' segmentation network alone (the verifier taken off)."""
-    shipped = load_pretrained()
-    network = OneShotFCN(dataclasses.replace(shipped.config, verifier_crop=0)).eval()
-    network.load_state_dict({k: v for k, v in shipped.state_dict().items() if not k.startswith("verifier.")})
-    return network
+    return load_pretrained().network_alone()
 
 
 @pytest.mark.parametrize("image_size", [64, 128])
