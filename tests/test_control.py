@@ -407,12 +407,12 @@ def test_servo_demonstrations_fill_the_buffer_before_the_dqn_acts(tmp_path):
     assert result["transitions"] == 2 * (first["learner_steps"] + second["learner_steps"])  # mirrored too
 
 
-def test_servo_failures_sorts_a_lost_episode_by_what_the_box_lay_on(monkeypatch):
+def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(monkeypatch):
     spec = importlib.util.spec_from_file_location(
-        "servo_failures", os.path.join(ROOT, "baselines", "servo_failures.py")
+        "box_failures", os.path.join(ROOT, "baselines", "box_failures.py")
     )
     failures = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "servo_failures", failures)
+    monkeypatch.setitem(sys.modules, "box_failures", failures)
     spec.loader.exec_module(failures)
 
     def steps(*pairs):  # (target pixels in view, what the box lies on: slot + 1, 0 floor, None no box)

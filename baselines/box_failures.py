@@ -1,6 +1,7 @@
-"""Why does the servo fail on the FCN's box where it succeeds on the ground truth's? Both run on the same
-held-out episodes; every episode the ground-truth servo solves and the FCN servo does not is put in one class
-by what the FCN's box lay on, step by step (the wrist camera's segmentation names each pixel's object):
+"""Why does a policy fail on the FCN's box where it succeeds on the ground truth's? The scripted servo, or the
+exploration and then a DQN (`--checkpoint`), runs on both boxes on the same held-out episodes; every episode
+solved on the ground truth's box and not on the FCN's is put in one class by what the FCN's box lay on, step
+by step (the wrist camera's segmentation names each pixel's object):
 
 - "on a look-alike": the box lay on another object on more steps than on the target (that object's relation
   to the target is counted: same colour, same shape, other);
@@ -8,7 +9,8 @@ by what the FCN's box lay on, step by step (the wrist camera's segmentation name
 - "on the target, not reached": the box lay mostly on the target and success never came;
 - "target never in view": never >= 20 px of it.
 
-    python baselines/servo_failures.py --episodes 50 --env.fcn-acquire-threshold 0.97 --env.fcn-track-threshold 0.5
+    python baselines/box_failures.py --episodes 50 --env.fcn-acquire-threshold 0.97 --env.fcn-track-threshold 0.5
+    python baselines/box_failures.py --episodes 50 --checkpoint agents/weights/dqn.pt
 """
 
 from __future__ import annotations
@@ -40,12 +42,21 @@ class Args:
     env: EnvConfig = field(
         default_factory=lambda: EnvConfig(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
     )
-    """the FCN servo's env; the reference is the same with the ground-truth box"""
+    """the env on the FCN's box; the reference is the same with the ground-truth box"""
+    checkpoint: str = ""
+    """a DQN checkpoint: the policy is the exploration, then this DQN (default: the scripted servo)"""
 
 
-def box_steps(env, seed: int) -> tuple[bool, list[dict]]:
+def make(env, args: Args):
+    """The policy compared: the servo, or the exploration handing over to the DQN of `args.checkpoint`."""
+    if args.checkpoint:
+        return make_policy("explore", env, then="dqn", checkpoint=args.checkpoint)
+    return make_policy("servo", env)
+
+
+def box_steps(env, policy, seed: int) -> tuple[bool, list[dict]]:
     """(success, per observation: target pixels in view, the box's pixels on the target, the object the box
-    mostly lies on (slot + 1, 0 floor, or None without a box), the box's presence score) of the servo."""
+    mostly lies on (slot + 1, 0 floor, or None without a box), the box's presence score) of the policy."""
     box_state, base, steps = env, env.unwrapped, []  # make_env's outermost wrapper is the BoxState
 
     def note(obs, info):
@@ -61,7 +72,7 @@ def box_steps(env, seed: int) -> tuple[bool, list[dict]]:
             )
         )
 
-    trajectory = run_episode(env, make_policy("servo", env), seed, on_step=note)
+    trajectory = run_episode(env, policy, seed, on_step=note)
     return bool(np.any(trajectory.success)), steps
 
 
@@ -83,10 +94,11 @@ def main(args: Args):
         raise ValueError(f"--env.box-source is {args.env.box_source!r}: this compares the FCN's box (fcn)")
     fcn_env = make_env(args.env)
     truth_env = make_env(dataclasses.replace(args.env, box_source="ground_truth"))
+    fcn_policy, truth_policy = make(fcn_env, args), make(truth_env, args)
     classes, relations, presences, successes = collections.Counter(), collections.Counter(), [], [0, 0]
     for seed in tqdm(list(eval_seeds(args.episodes, args.seed)), desc="episodes"):
-        truth_ok = bool(np.any(run_episode(truth_env, make_policy("servo", truth_env), seed).success))
-        fcn_ok, steps = box_steps(fcn_env, seed)
+        truth_ok = bool(np.any(run_episode(truth_env, truth_policy, seed).success))
+        fcn_ok, steps = box_steps(fcn_env, fcn_policy, seed)
         successes[0] += truth_ok
         successes[1] += fcn_ok
         if not truth_ok or fcn_ok:
@@ -100,7 +112,7 @@ def main(args: Args):
             relations[RELATIONS[int(slot_kinds[on - 1])] if on <= len(slot_kinds) else "floor or robot"] += 1
             presences += [s["presence"] for s in steps if s["on"] == on]
     print(
-        f"servo success on {args.episodes} episodes from {args.seed}: ground truth {successes[0] / args.episodes:.2f}, FCN {successes[1] / args.episodes:.2f}"
+        f"{'DQN ' + args.checkpoint if args.checkpoint else 'servo'} success on {args.episodes} episodes from {args.seed}: ground truth {successes[0] / args.episodes:.2f}, FCN {successes[1] / args.episodes:.2f}"
     )
     print(f"solved on the ground truth's box and not on the FCN's: {sum(classes.values())}")
     for kind in ("on a look-alike", "target missed", "on the target, not reached", "target never in view"):
