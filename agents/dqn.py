@@ -157,6 +157,10 @@ class Args:
     """n-step returns: bootstrap after n of the learner's steps (not in the paper)"""
     updates_per_step: int = 1
     """gradient updates per env step (not in the paper)"""
+    box_dropout: float = 0.0
+    """in training, each step's box is replaced by "not seen" (zeros) with this probability, for the actor and
+    the learner alike: the FCN's box misses about a third of the target's views (docs/vision.md), which a
+    learner on the ground-truth box never meets (not in the paper; 0: off)"""
     run_dir: str = "runs/dqn"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -359,6 +363,16 @@ def last_step(obs, info: dict) -> tuple:
     return obs, {key: np.where(done, final[key], info[key]) for key in INFO_KEYS if key in info}
 
 
+def drop_boxes(obs, dropped: np.ndarray):
+    """The box state with the envs `dropped` (a bool each) set to "not seen" (the box zeros; a camera position
+    after it is kept); `obs` itself when none is dropped."""
+    if not dropped.any():
+        return obs
+    array = box_array(obs)  # a copy
+    array[dropped, :4] = 0.0
+    return array
+
+
 def update(q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict, args: Args) -> tuple[float, float]:
     """One gradient step on a batch: the TD loss, plus DQfD's margin loss with `demo_margin`; returns both."""
     loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
@@ -414,6 +428,8 @@ def train(args: Args, progress: bool = True) -> dict:
         )
     if args.mirror_augment and args.env.with_ee_pos:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
+    if not 0 <= args.box_dropout < 1:
+        raise ValueError(f"box_dropout={args.box_dropout} must be a probability in [0, 1)")
     if args.env.box_source == "none":
         raise ValueError("the DQN learns on the box state: env.box_source must be ground_truth or fcn")
     if args.episodes % args.num_envs:
@@ -428,6 +444,7 @@ def train(args: Args, progress: bool = True) -> dict:
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
+    drop_rng = np.random.default_rng([args.seed, 1])  # its own stream: the other presets' draws are unchanged
     n = args.num_envs
     env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)  # 6, or 7 with env.stay_action
@@ -458,6 +475,8 @@ def train(args: Args, progress: bool = True) -> dict:
             mixed.demo = episodes < args.demo_episodes
             seeds = [args.seed * TRAIN_SEED_STRIDE + int(e) for e in episodes]
             obs, info = env.reset(seed=seeds[0] if n == 1 else seeds)
+            if args.box_dropout:
+                obs = drop_boxes(obs, drop_rng.random(n) < args.box_dropout)
             actor.reset(obs, info)
             for i in range(n):
                 trajectories[i].start(env_info(info, i))
@@ -472,6 +491,9 @@ def train(args: Args, progress: bool = True) -> dict:
                 learner.last_action[mixed.demo] = action[mixed.demo]  # the state's last direction is the actor's
                 next_obs, reward, terminated, truncated, info = env.step(action)
                 final_obs, final_info = last_step(next_obs, info)  # before a vector env's same-step reset
+                if args.box_dropout:  # the same draw for the step's observation and its episode's last one
+                    dropped = drop_rng.random(n) < args.box_dropout
+                    next_obs, final_obs = drop_boxes(next_obs, dropped), drop_boxes(final_obs, dropped)
                 next_states = learner.state(final_obs)
                 for i in np.flatnonzero(running):
                     view = env_info(final_info, i)

@@ -338,6 +338,16 @@ def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
         dqn.train(dataclasses.replace(args, env=args.env.replace(with_ee_pos=True)), progress=False)
 
 
+def test_box_dropout_hides_the_box_of_the_dropped_envs_only():
+    obs = torch.tensor([[0.5, 0.4, 0.1, 0.2, 0.3, 0.0, 0.6], [0.2, 0.2, 0.3, 0.3, 0.1, 0.1, 0.5]])
+    dropped = dqn.drop_boxes(obs, np.array([True, False]))
+    assert dropped[0].tolist() == pytest.approx([0, 0, 0, 0, 0.3, 0.0, 0.6])  # the camera's position is kept
+    assert dropped[1].tolist() == pytest.approx(obs[1].tolist())
+    assert dqn.drop_boxes(obs, np.array([False, False])) is obs
+    with pytest.raises(ValueError, match=r"box_dropout=1.0 must be a probability in \[0, 1\)"):
+        dqn.train(dqn.Args(box_dropout=1.0), progress=False)
+
+
 def test_dqn_policy_with_last_action_sees_its_own_previous_direction():
     env = _box_env(placement="fixed")
     obs, info = env.reset(seed=0)
