@@ -34,6 +34,8 @@ class BoxState(gym.ObservationWrapper):
     `thresholds`: for `source="fcn"` with a verifier, (acquire, track): the verifier probability a new region
     needs, and one near the region kept at the previous step of the same episode (0: the checkpoint's
     `verifier_threshold`; `OneShotFCN.predict_with_presence`). (0, 0): every frame judged alone.
+    `hold_steps`: while the mask is empty, the last box seen in the episode is given for up to this many steps
+    (the mask and presence stay the source's own); 0: off.
     """
 
     def __init__(
@@ -43,6 +45,7 @@ class BoxState(gym.ObservationWrapper):
         with_ee_pos: bool = False,
         segmenter=None,
         thresholds: tuple[float, float] = (0.0, 0.0),
+        hold_steps: int = 0,
     ):
         super().__init__(env)
         check_thresholds(thresholds)
@@ -66,6 +69,9 @@ class BoxState(gym.ObservationWrapper):
         self.source = source
         self.with_ee_pos = with_ee_pos
         self.thresholds = tuple(thresholds)
+        self.hold_steps = hold_steps
+        self._held: torch.Tensor | None = None  # (N, 4): the last box seen in each env's episode
+        self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
         dim = 7 if with_ee_pos else 4
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
@@ -74,13 +80,18 @@ class BoxState(gym.ObservationWrapper):
 
     def reset(self, *, seed=None, options=None):
         """The next observation tracks nothing from the episodes being reset (all, or `options["env_idx"]`)."""
+        env_idx = (options or {}).get("env_idx")
         if self.last_mask is not None:
-            env_idx = (options or {}).get("env_idx")
             if env_idx is None:
                 self.last_mask = None
             else:
                 self.last_mask = self.last_mask.clone()
                 self.last_mask[torch.as_tensor(env_idx, device=self.last_mask.device)] = False
+        if self._held is not None:
+            if env_idx is None:
+                self._held = self._unseen_for = None
+            else:
+                self._held[torch.as_tensor(env_idx, device=self._held.device)] = 0.0
         return super().reset(seed=seed, options=options)
 
     def observation(self, obs):
@@ -104,11 +115,24 @@ class BoxState(gym.ObservationWrapper):
             presence = mask.flatten(1).any(1).float()
         self.last_mask, self.last_presence = mask, presence
         state = mask_to_box(mask)
+        if self.hold_steps:
+            state = self._hold(state)
         if self.with_ee_pos:
             state = torch.cat([state, base.agent.controller.target_pos.to(state.device)], -1)
         if self._numpy:
             return state[0].cpu().numpy()
         return state
+
+    def _hold(self, box: torch.Tensor) -> torch.Tensor:
+        """`box`, with the last box seen in place of an empty one for up to `hold_steps` steps."""
+        seen = box[:, 2] > 0
+        if self._held is None:
+            self._held = torch.zeros_like(box)
+            self._unseen_for = torch.zeros(len(box), dtype=torch.long, device=box.device)
+        self._unseen_for = torch.where(seen, 0, self._unseen_for + 1)
+        self._held = torch.where(seen[:, None], box, self._held)
+        use = ~seen & (self._unseen_for <= self.hold_steps)
+        return torch.where(use[:, None], self._held, box)
 
 
 def check_thresholds(thresholds) -> None:

@@ -71,6 +71,9 @@ class EnvConfig:
     fcn_track_threshold: float = 0.0
     """box_source=fcn: the verifier probability a region near the previous step's box needs to stay the box
     (0: the checkpoint's `verifier_threshold`); below the acquiring one, the box tracks the target"""
+    box_hold_steps: int = 0
+    """while the box source sees nothing, keep giving the last box seen in the episode for up to this many
+    steps (0: off): the FCN misses a third of the target's views, mostly small or cut ones (docs/control.md)"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
     occluders: int = 0
@@ -90,6 +93,8 @@ class EnvConfig:
         for name in ("fcn_acquire_threshold", "fcn_track_threshold"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be in [0, 1) (0: the checkpoint's)")
+        if not (isinstance(self.box_hold_steps, int) and self.box_hold_steps >= 0):
+            raise ValueError(f"box_hold_steps={self.box_hold_steps!r} must be an integer of at least 0 (0: off)")
         if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps={self.max_episode_steps!r} must be a positive integer")
 
@@ -142,6 +147,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         with_ee_pos=config.with_ee_pos,
         segmenter=segmenter,
         thresholds=(config.fcn_acquire_threshold, config.fcn_track_threshold),
+        hold_steps=config.box_hold_steps,
     )
 
 

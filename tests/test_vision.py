@@ -514,6 +514,33 @@ def test_box_state_tracks_within_an_episode_and_forgets_at_reset():
         mav.EnvConfig(fcn_track_threshold=1.5)
 
 
+def test_box_hold_keeps_the_last_box_seen_for_its_steps_and_forgets_it_at_reset():
+    class Scripted:  # a segmenter that sees a box, then nothing
+        def __init__(self, seen):
+            self.seen, self.calls = seen, 0
+
+        def predict_with_presence(self, scene, target, largest_component):
+            mask = torch.zeros(1, *scene.shape[1:3], dtype=torch.bool)
+            if self.seen[self.calls % len(self.seen)]:
+                mask[0, 8:24, 16:32] = True
+            self.calls += 1
+            return mask, mask.flatten(1).any(1).float()
+
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    segmenter = Scripted([True, False, False, False, True, False])
+    env = BoxState(task, source="fcn", segmenter=segmenter, hold_steps=2)
+    boxes = [env.reset(seed=0)[0]] + [env.step(0)[0] for _ in range(5)]
+    boxes = [torch.as_tensor(b).reshape(-1).numpy() for b in boxes]
+    seen = boxes[0]
+    assert seen[2] > 0 and np.allclose(boxes[1], seen) and np.allclose(boxes[2], seen)  # held 2 steps
+    assert not boxes[3].any() and env.last_mask is not None and not env.last_mask.any()  # then not seen
+    assert np.allclose(boxes[4], seen) and np.allclose(boxes[5], seen)  # seen again, held again
+    segmenter.seen = [False]
+    assert not torch.as_tensor(env.reset(seed=0)[0]).any()  # a new episode holds nothing of the last
+    with pytest.raises(ValueError, match="box_hold_steps=-1 must be an integer of at least 0"):
+        mav.EnvConfig(box_hold_steps=-1)
+
+
 def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives(tmp_path):
     from mani_active_vision.evaluation.rollout_frames import (
         FLOOR,
