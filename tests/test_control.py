@@ -338,6 +338,18 @@ def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
         dqn.train(dataclasses.replace(args, env=args.env.replace(with_ee_pos=True)), progress=False)
 
 
+def test_ending_cycle_finds_the_period_of_the_last_actions(monkeypatch):
+    spec = importlib.util.spec_from_file_location("action_counts", os.path.join(ROOT, "baselines", "action_counts.py"))
+    counts = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "action_counts", counts)
+    spec.loader.exec_module(counts)
+    assert counts.ending_cycle([2] * 30 + [4, 5] * 10) == 2  # up, down, up, down, ...
+    assert counts.ending_cycle([0, 1, 2, 3, 4] * 6) is None  # a period of 5 is not a cycle here
+    assert counts.ending_cycle([3] * 25) == 1
+    assert counts.ending_cycle([4, 5] * 9) is None  # shorter than CYCLE_STEPS
+    assert counts.ending_cycle([0, 4, 1, 5] * 5 + [0, 4]) == 4
+
+
 def test_box_dropout_hides_the_box_of_the_dropped_envs_only():
     obs = torch.tensor([[0.5, 0.4, 0.1, 0.2, 0.3, 0.0, 0.6], [0.2, 0.2, 0.3, 0.3, 0.1, 0.1, 0.5]])
     dropped = dqn.drop_boxes(obs, np.array([True, False]))
