@@ -590,12 +590,16 @@ in success earns `hold_reward` (docs/control.md)."""
 DEMO = {"demo_episodes": 10}
 """Added to a preset: the scripted servo acts the first 10 of its 100 training episodes (docs/control.md)."""
 
+WIDE = {"hidden_units": 128}
+"""Added to a preset: 128 hidden units instead of the paper's 20 (docs/control.md §6)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
     "hold": ("shaped, but episodes go on past success and time in success pays", Args(**HOLD)),
     "shaped_demo": ("shaped, the servo acting its first 10 training episodes", Args(**SHAPED, **DEMO)),
     "hold_demo": ("hold, the servo acting its first 10 training episodes", Args(**HOLD, **DEMO)),
+    "hold_demo_wide": ("hold_demo with 128 hidden units (the shipped agent's)", Args(**HOLD, **DEMO, **WIDE)),
 }
 
 if __name__ == "__main__":

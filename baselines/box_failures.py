@@ -25,7 +25,7 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.policies import make_policy
-from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig, make_env
+from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import eval_seeds
 from mani_active_vision.evaluation.rollout import run_episode
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
@@ -40,9 +40,11 @@ class Args:
     seed: int = 1_000_000
     """first episode's seed (held out)"""
     env: EnvConfig = field(
-        default_factory=lambda: EnvConfig(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
+        default_factory=lambda: EnvConfig(
+            box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS
+        )
     )
-    """the env on the FCN's box; the reference is the same with the ground-truth box"""
+    """the env on the FCN's box, as deployed; the reference is the same with the ground-truth box"""
     checkpoint: str = ""
     """a DQN checkpoint: the policy is the exploration, then this DQN (default: the scripted servo)"""
 

@@ -1,5 +1,5 @@
 """Make a DQN checkpoint the shipped agent: a copy whose env (what evaluation starts from) is the deployed one,
-the FCN's box on unseen objects at 128², with the env it was trained in kept as config["trained_env"].
+the FCN's box on unseen objects at 128², held through the FCN's misses, with the env it was trained in kept as config["trained_env"].
 
     python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt
 
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 import tyro
 
-from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
 
 
 @dataclass
@@ -32,15 +32,21 @@ class Args:
     """the deployed objects: never seen in training"""
     image_size: int = FCN_IMAGE_SIZE
     """the deployed camera's side (the FCN's box is deployed at 128²: envs.FCN_IMAGE_SIZE)"""
+    box_hold_steps: int = FCN_BOX_HOLD_STEPS
+    """the deployed box keeps the last box seen this many steps while the FCN sees nothing (envs.FCN_BOX_HOLD_STEPS)"""
 
 
 def ship(args: Args) -> EnvConfig:
-    """Copy the checkpoint with the deployed env (its training env with the box and objects changed)."""
+    """Copy the checkpoint with the deployed env (its training env with the box, its hold, the objects and the
+    camera's side changed)."""
     saved = torch.load(args.checkpoint, map_location="cpu", weights_only=True)
     config = saved["config"]
     trained = config.get("trained_env", config["env"])
     env = EnvConfig.from_dict(trained).replace(
-        box_source=args.box_source, object_set=args.object_set, image_size=args.image_size
+        box_source=args.box_source,
+        object_set=args.object_set,
+        image_size=args.image_size,
+        box_hold_steps=args.box_hold_steps,
     )
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

@@ -29,6 +29,10 @@ FCN_IMAGE_SIZE = 128
 with the target image's at the camera's own resolution, so a 64² camera halves what it sees (the servo on the
 FCN's box: 0.58 success at 128², 0.24 at 64²; docs/vision.md). Training on the ground-truth box keeps 64²."""
 
+FCN_BOX_HOLD_STEPS = 20
+"""`EnvConfig.box_hold_steps` where the FCN's box is deployed: an agent trained on the ground-truth box keeps
+acting on the last box the FCN saw while the FCN misses the target (docs/control.md §6)."""
+
 
 @dataclass(frozen=True)
 class EnvConfig:

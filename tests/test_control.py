@@ -21,7 +21,7 @@ from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import DOWN, FORWARD, LEFT, POLICIES, RIGHT, UP, ExplorePolicy, make_policy
 from mani_active_vision.agents.q_network import save_q_network
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
 from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
@@ -276,7 +276,9 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.image_size) == ("fcn", "unseen", FCN_IMAGE_SIZE)
     assert trained.box_source == "ground_truth"  # evaluate.py starts from the deployed env
-    assert deployed == trained.replace(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
+    assert deployed == trained.replace(
+        box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS
+    )
     env = mav.make_env(deployed.replace(max_episode_steps=25))
     try:
         policy = make_policy("explore", env, then="dqn", checkpoint=path)
@@ -430,9 +432,7 @@ def test_servo_demonstrations_fill_the_buffer_before_the_dqn_acts(tmp_path):
 
 
 def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(monkeypatch):
-    spec = importlib.util.spec_from_file_location(
-        "box_failures", os.path.join(ROOT, "baselines", "box_failures.py")
-    )
+    spec = importlib.util.spec_from_file_location("box_failures", os.path.join(ROOT, "baselines", "box_failures.py"))
     failures = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, "box_failures", failures)
     spec.loader.exec_module(failures)
