@@ -1,5 +1,6 @@
 """Make a DQN checkpoint the shipped agent: a copy whose env (what evaluation starts from) is the deployed one,
-the FCN's box on unseen objects at 128², held through the FCN's misses, with the env it was trained in kept as config["trained_env"].
+the FCN's box on unseen objects at 128², held through the FCN's misses, with the env it was trained in kept
+as config["trained_env"].
 
     python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt
 
