@@ -25,7 +25,7 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.policies import make_policy
-from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig, make_env
+from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import eval_seeds
 from mani_active_vision.evaluation.rollout import run_episode
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
@@ -39,11 +39,7 @@ class Args:
     episodes: int = 50
     seed: int = 1_000_000
     """first episode's seed (held out)"""
-    env: EnvConfig = field(
-        default_factory=lambda: EnvConfig(
-            box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS
-        )
-    )
+    env: EnvConfig = field(default_factory=lambda: EnvConfig(object_set="unseen").on_fcn_box())
     """the env on the FCN's box, as deployed; the reference is the same with the ground-truth box"""
     checkpoint: str = ""
     """a DQN checkpoint: the policy is the exploration, then this DQN (default: the scripted servo)"""

@@ -25,7 +25,7 @@ import tyro
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.agents.q_network import checkpoint_env_config
-from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig, make_env
+from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
 from mani_active_vision.json_io import save_json
@@ -64,9 +64,7 @@ def eval_env(args: Args, box_source: str) -> EnvConfig:
     """The evaluation env on `box_source`: the training env with the evaluation objects (and, on the FCN's box,
     as the FCN is deployed: the camera's side and the box held through its misses)."""
     config = args.env.replace(box_source=box_source, object_set=args.eval_object_set)
-    if box_source != "fcn":
-        return config
-    return config.replace(image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS)
+    return config.on_fcn_box() if box_source == "fcn" else config
 
 
 def main(args: Args):

@@ -131,6 +131,11 @@ class EnvConfig:
             raise TypeError(f"EnvConfig has no option {', '.join(sorted(unknown))}; options: {valid}")
         return dataclasses.replace(self, **changes)
 
+    def on_fcn_box(self) -> EnvConfig:
+        """This config on the FCN's box as the shipped agents are deployed: the camera at `FCN_IMAGE_SIZE`, the box
+        held `FCN_BOX_HOLD_STEPS` steps through the FCN's misses."""
+        return self.replace(box_source="fcn", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS)
+
     @classmethod
     def from_dict(cls, options: dict) -> EnvConfig:
         """The config a checkpoint stored (`dataclasses.asdict`); unknown keys are an error."""

@@ -14,6 +14,8 @@ STEPS=${STEPS:-50000}
 SHIP_SEED=${SHIP_SEED:-0}
 # shellcheck disable=SC2086
 $PY baselines/search_seeds.py --seeds $SEEDS --total-steps "$STEPS" "$@"
-$PY baselines/ship_dqn.py --checkpoint "runs/search_seeds/seed$SHIP_SEED/agent.pt" --out agents/weights/search.pt
+# the memory agent was measured on the FCN's box as it is, not held through its misses
+$PY baselines/ship_dqn.py --checkpoint "runs/search_seeds/seed$SHIP_SEED/agent.pt" --out agents/weights/search.pt \
+  --box-hold-steps 0
 $PY baselines/evaluate.py --policy memory --checkpoint agents/weights/search.pt --episodes 50 \
     --json outputs/search_shipped.json
