@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 import tyro
 
-from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, EnvConfig
 
 
 @dataclass
@@ -27,27 +27,23 @@ class Args:
     """the trained checkpoint (a DQN's q_network.pt, or the memory agent's agent.pt)"""
     out: str = "agents/weights/dqn.pt"
     """where the shipped checkpoint goes"""
-    box_source: str = "fcn"
-    """the deployed box: the FCN's (as in the paper)"""
     object_set: str = "unseen"
     """the deployed objects: never seen in training"""
-    image_size: int = FCN_IMAGE_SIZE
-    """the deployed camera's side (the FCN's box is deployed at 128²: envs.FCN_IMAGE_SIZE)"""
     box_hold_steps: int = FCN_BOX_HOLD_STEPS
-    """the deployed box keeps the last box seen this many steps while the FCN sees nothing (envs.FCN_BOX_HOLD_STEPS)"""
+    """how many steps the deployed box keeps the last box seen while the FCN sees nothing
+    (default: `EnvConfig.on_fcn_box`'s, envs.FCN_BOX_HOLD_STEPS)"""
 
 
 def ship(args: Args) -> EnvConfig:
-    """Copy the checkpoint with the deployed env (its training env with the box, its hold, the objects and the
-    camera's side changed)."""
+    """Copy the checkpoint with the deployed env: its training env on the FCN's box as deployed
+    (`EnvConfig.on_fcn_box`), with the deployed objects."""
     saved = torch.load(args.checkpoint, map_location="cpu", weights_only=True)
     config = saved["config"]
     trained = config.get("trained_env", config["env"])
-    env = EnvConfig.from_dict(trained).replace(
-        box_source=args.box_source,
-        object_set=args.object_set,
-        image_size=args.image_size,
-        box_hold_steps=args.box_hold_steps,
+    env = (
+        EnvConfig.from_dict(trained)
+        .on_fcn_box()
+        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
     )
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
