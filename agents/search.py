@@ -1,33 +1,36 @@
-"""Recurrent PPO: an agent with memory that searches for the target, centres it and holds it, with no
-scripted exploration (issue 16), one file in the CleanRL manner (the shape of CleanRL's `ppo_atari_lstm.py`,
-with a GRU on the box state instead of an LSTM on pixels).
+"""The memory agent: a recurrent policy that searches for the target, centres it and holds it, with no
+scripted exploration (issue 16), one file in the CleanRL manner. Two learners, chosen by measurement
+(docs/search.md): DAgger from the shipped agent (the default) and recurrent PPO (the shape of CleanRL's
+`ppo_atari_lstm.py`, with a GRU on the box state instead of an LSTM on pixels).
 
     python -m mani_active_vision.agents.search --help
-    python -m mani_active_vision.agents.search --seed 0 --total-steps 50000       # 2 workers, ground-truth box
-    python baselines/evaluate.py --policy memory --checkpoint runs/search/seed0/agent.pt --env.box-source fcn \\
-        --env.object-set unseen --episodes 50                                      # as deployed
+    python -m mani_active_vision.agents.search --seed 0                  # DAgger, 20,000 steps, 2 workers, ~3 min
+    python -m mani_active_vision.agents.search --algo ppo --teacher servo --total-steps 50000   # PPO
+    python baselines/evaluate.py --policy memory --checkpoint runs/search/seed0/agent.pt --env.box-source fcn \
+        --env.image-size 128 --env.box-hold-steps 20 --env.object-set unseen --episodes 50   # as deployed
 
 The paper's DQN without its scripted exploration "completely fails" on random placements; its authors name
 the next step: memory (a sequence model) so that the agent learns to explore. This is that agent:
 - input at every step (`agents.recurrent_network.features`): the target's box (zeros when unseen), the
   camera's commanded position (azimuth as sine and cosine, radius, height: where it has looked; the env is
   made with `with_ee_pos`) and a one-hot of its own previous action;
-- a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (the
-  sequences are replayed with the same resets from the rollout's first state) and in evaluation;
-- first, behaviour cloning of the scripted servo (`demo_episodes` per env: its actions, cross-entropy; the
-  value head fit to the learner's returns), because PPO from scratch found success too rarely to learn in
-  the budget (docs/search.md, "what did not work");
-- then PPO (clipped surrogate, GAE, entropy bonus) on `num_envs` `make_vec_env` worker processes; a rollout
-  is `num_steps` steps of every env, and each minibatch is whole sequences of some of the envs; `demo_coef`
-  (going linearly to `demo_coef_end`, 0 by default) times the cross-entropy against the servo's action in
-  the agent's own states (DAgger's labels; the servo runs beside the agent) joins PPO's loss;
-- the learner's reward is the DQN's `hold` reward (`agents.dqn.LearnerReward`, docs/design.md §9):
-  potential-based shaping ×5 on the log of the target's share and how centred it is, 1 at the first
-  success, 0.2 for every later step in success, 0.02 per step and 0.1 more for a refused one; the episode is
-  the task as it is (100 steps from the `sky` start, no end at success), so holding pays;
-- a truncated episode is treated as ended (no bootstrap past the step limit), as CleanRL does.
-The defaults train on the ground-truth box (cheaper than the FCN's, docs/search.md); evaluation on the
-FCN's box is then the deployed condition. `--track` writes the training scalars to TensorBoard.
+- a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (whole
+  sequences replayed with the same resets) and in evaluation;
+- the teacher (`teacher`): the shipped agent, the scripted exploration handing over to the DQN of
+  `agents/weights/dqn.pt`, or the scripted servo; it runs beside the learner and labels the learner's own
+  states (its sweep turns on the learner's refusals, its hand-over latches on the learner's first sighting);
+- `algo=dagger` (Ross et al., 2011): the greedy learner acts on `num_envs` `make_vec_env` worker processes,
+  the teacher acting instead on a share of the steps that falls from 1 to 0 over `dagger_beta_steps`; every
+  labelled episode is kept and the policy is fit to all of them (cross-entropy). The memory learns what the
+  teacher keeps in its state: which way it sweeps and whether it has seen the target;
+- `algo=ppo`: behaviour cloning of the teacher (`demo_episodes` per env), then PPO (clipped surrogate, GAE,
+  entropy bonus; a rollout is `num_steps` steps of every env, each minibatch whole sequences of some envs)
+  with `demo_coef` (going linearly to `demo_coef_end`) times the cross-entropy against the teacher's labels;
+  the learner's reward is the DQN's `hold` reward (`agents.dqn.LearnerReward`, docs/design.md §9); a
+  truncated episode is treated as ended (no bootstrap past the step limit), as CleanRL does.
+The episode is the task as it is (100 steps from the `sky` start, no end at success). Training is on the
+ground-truth box (cheaper than the FCN's); evaluation on the FCN's box is the deployed condition. `--track`
+writes the training scalars to TensorBoard.
 """
 
 from __future__ import annotations
@@ -55,8 +58,18 @@ from mani_active_vision.agents.dqn import (
     last_step,
     tensorboard_writer,
 )
-from mani_active_vision.agents.policies import STAY_INDEX, ServoPolicy, box_array, num_actions
+from mani_active_vision.agents.policies import (
+    LEFT,
+    RIGHT,
+    STAY_INDEX,
+    ServoPolicy,
+    box_array,
+    info_flags,
+    num_actions,
+)
+from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim, save_agent
+from mani_active_vision.directions import DIRECTIONS
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.evaluation.rollout import stop_on_ctrl_c
 from mani_active_vision.json_io import save_json
@@ -70,8 +83,8 @@ class Args:
     """the env the agent learns in (needs with_ee_pos; stored in the checkpoint, evaluation reads it back)"""
     seed: int = 0
     """seed of the run (torch, numpy, the envs' first episodes)"""
-    total_steps: int = 50_000
-    """env steps in all (summed over the envs), rounded down to whole rollouts"""
+    total_steps: int = 20_000
+    """env steps in all (summed over the envs); ppo rounds down to whole rollouts"""
     num_envs: int = 2
     """make_vec_env worker processes that collect at once"""
     num_steps: int = 100
@@ -114,23 +127,46 @@ class Args:
     stay_penalty: float = 0.0
     """subtracted at a `stay` out of success (env.stay_action)"""
     demo_episodes: int = 30
-    """episodes per env of the scripted servo whose actions the agent imitates before PPO (behaviour cloning,
-    its value fit to their returns; their env steps count in total_steps); 0: PPO from scratch"""
+    """ppo: episodes per env of the teacher whose actions the agent imitates before PPO (behaviour cloning, its
+    value fit to their returns; their env steps count in total_steps); 0: PPO from scratch"""
     demo_epochs: int = 300
-    """passes of behaviour cloning over the servo's episodes"""
+    """ppo: passes of behaviour cloning over the teacher's episodes"""
     demo_learning_rate: float = 1e-3
-    """Adam learning rate of the behaviour cloning"""
+    """ppo: Adam learning rate of the behaviour cloning"""
     demo_coef: float = 1.0
-    """weight in PPO's loss of the cross-entropy against the servo's action in the agent's own states (DAgger's
-    labels), at the start of PPO; it goes linearly to demo_coef_end over the run (both 0: off)"""
+    """weight in PPO's loss of the cross-entropy against the teacher's action in the agent's own states
+    (DAgger's labels), at the start of PPO; it goes linearly to demo_coef_end over the run (both 0: off)"""
     demo_coef_end: float = 0.0
     """that weight at the end of the run (demo_coef: constant)"""
+    algo: str = "dagger"
+    """ppo: behaviour cloning, then PPO with the teacher's labels (above); dagger: DAgger alone (the learner
+    acts, the teacher labels its states, every labelled episode is kept and the policy is fit to them; the
+    demo_* and PPO options are not used)"""
+    teacher: str = "agents/weights/dqn.pt"
+    """whose actions label the learner's states (and play the cloned episodes): servo (the scripted servo), or
+    a DQN checkpoint, e.g. agents/weights/dqn.pt (the scripted exploration handing over to that DQN, as the
+    shipped agent is deployed)"""
+    teacher_stays: bool = False
+    """the teacher takes `stay` (the env needs stay_action) while the task reports success: privileged (the
+    ground truth's success), a teacher that shows holding"""
+    dagger_beta_steps: int = 10_000
+    """dagger: env steps over which the share of steps on which the teacher's action is taken instead of the
+    learner's falls linearly from 1 to 0"""
+    dagger_updates: int = 8
+    """dagger: gradient steps after each round of finished episodes"""
+    dagger_batch: int = 32
+    """dagger: labelled episodes per gradient step (drawn from all kept so far)"""
+    dagger_learning_rate: float = 1e-3
+    """dagger: Adam learning rate"""
     run_dir: str = "runs/search"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
     """the run's folder name (default: seed<k>)"""
     track: bool = False
     """also write the training scalars to TensorBoard in the run's folder (the optional extra `track`)"""
+
+
+ALGOS = ("ppo", "dagger")
 
 
 def check(args: Args):
@@ -144,16 +180,31 @@ def check(args: Args):
             "demo_episodes cuts the servo's play into whole episodes of max_episode_steps: it needs "
             "env.terminate_on_success off"
         )
+    if args.algo not in ALGOS:
+        raise ValueError(f"algo={args.algo!r} is not one of: {', '.join(ALGOS)}")
+    if args.algo == "dagger" and args.env.terminate_on_success:
+        raise ValueError("algo=dagger fits whole episodes of max_episode_steps: it needs env.terminate_on_success off")
+    if args.teacher != "servo" and not os.path.isfile(args.teacher):
+        raise ValueError(f"teacher={args.teacher!r} is neither servo nor a DQN checkpoint file")
+    if args.teacher_stays and not args.env.stay_action:
+        raise ValueError("teacher_stays takes `stay`: it needs env.stay_action")
     if args.shaping not in SHAPINGS:
         raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
     if args.num_envs < 1 or args.num_envs % args.num_minibatches:
         raise ValueError(
             f"num_envs={args.num_envs} must be a positive multiple of num_minibatches={args.num_minibatches}"
         )
+    if args.algo == "dagger":
+        if args.total_steps < args.num_envs * args.env.max_episode_steps:
+            raise ValueError(
+                f"total_steps={args.total_steps} is less than one episode per env "
+                f"(num_envs * env.max_episode_steps = {args.num_envs * args.env.max_episode_steps})"
+            )
+        return
     demo_steps = args.demo_episodes * args.env.max_episode_steps * args.num_envs
     if args.total_steps < demo_steps + args.num_envs * args.num_steps:
         raise ValueError(
-            f"total_steps={args.total_steps} is less than the servo's episodes and one rollout "
+            f"total_steps={args.total_steps} is less than the teacher's episodes and one rollout "
             f"({demo_steps} + num_envs * num_steps = {args.num_envs * args.num_steps})"
         )
 
@@ -250,19 +301,141 @@ class Collector:
         return learned, self.starts.clone()
 
 
-def imitate_servo(agent: RecurrentActorCritic, collector: Collector, args: Args, bar) -> dict:
-    """Behaviour cloning before PPO: the scripted servo (sweep, centre, approach; acting on the training box)
-    plays `demo_episodes` episodes per env; the agent's policy is fit to its actions (cross-entropy, through
+class ServoTeacher:
+    """The scripted servo as the teacher, asked in the learner's own states; its sweep restarts with every
+    episode and turns on refused steps (whoever took them). With `stays` it takes `stay` in success."""
+
+    def __init__(self, env, stays: bool = False):
+        self.servo = ServoPolicy(env, hold=stays)
+
+    def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
+        self.servo.sweep.direction[starts] = self.servo.sweep.first
+        return self.servo.act(obs, info)
+
+    def executed(self, action: np.ndarray):
+        pass
+
+
+class ExploreDQNTeacher:
+    """The shipped agent as the teacher: the scripted exploration (orbit, turning back when its own direction
+    is refused) until the target is first seen, then a DQN checkpoint, asked in the learner's own states. It
+    follows the learner's trajectory: the hand-over latches on the learner's first sighting and the DQN's
+    previous direction is the one the learner took, as it would be had the DQN acted. The DQN sees the box
+    alone (x, y, w, h), as it was trained. With `stays` (the env has `stay`, the DQN may not) it takes `stay`
+    while the task reports success; a `stay` is no previous direction for a six-direction DQN."""
+
+    def __init__(self, env, checkpoint: str, stays: bool = False):
+        self.q_network, config = load_q_network(checkpoint)
+        self.n, self.actions, self.stays = env.unwrapped.num_envs, num_actions(env), stays
+        self.with_last_action = bool(config.get("with_last_action", False))
+        q_actions = self.q_network.num_actions
+        expected = 4 + (q_actions if self.with_last_action else 0)
+        if self.q_network.state_dim != expected or q_actions not in (self.actions, len(DIRECTIONS)):
+            raise ValueError(
+                f"teacher {checkpoint!r} takes a state of {self.q_network.state_dim} numbers and {q_actions} "
+                f"actions; the learner's env gives the box (4) and {self.actions} actions (the six directions"
+                f"{' and stay' if self.actions > len(DIRECTIONS) else ''})"
+            )
+        self.direction = np.full(self.n, LEFT)
+        self.handed_over = np.zeros(self.n, dtype=bool)
+        self.last_action = np.full(self.n, -1)
+        self.executed_action = np.full(self.n, -1)
+
+    def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
+        refused = info_flags(info, "refused", self.n) & (self.executed_action == self.direction) & ~starts
+        self.direction[refused] = np.where(self.direction[refused] == LEFT, RIGHT, LEFT)
+        self.direction[starts], self.handed_over[starts], self.last_action[starts] = LEFT, False, -1
+        box = box_array(obs)[:, :4]
+        self.handed_over |= box[:, 2] > 0
+        state = box
+        if self.with_last_action:
+            one_hot = (self.last_action[:, None] == np.arange(self.q_network.num_actions)).astype(np.float32)
+            state = np.concatenate([box, one_hot], 1)
+        with torch.no_grad():
+            greedy = self.q_network(torch.as_tensor(state)).argmax(-1).numpy()
+        action = np.where(self.handed_over, greedy, self.direction)
+        if self.stays:
+            action[info_flags(info, "success", self.n) & ~starts] = STAY_INDEX
+        return action.astype(np.int64)
+
+    def executed(self, action: np.ndarray):
+        """The action the learner took: the DQN's previous direction from the hand-over on."""
+        self.executed_action = np.asarray(action).copy()
+        self.last_action = np.where(self.handed_over, self.executed_action, -1)
+
+
+def make_teacher(env, args: Args):
+    if args.teacher == "servo":
+        return ServoTeacher(env, args.teacher_stays)
+    return ExploreDQNTeacher(env, args.teacher, args.teacher_stays)
+
+
+def dagger(agent: RecurrentActorCritic, collector: Collector, args: Args, bar, stop_requested) -> dict:
+    """DAgger (Ross et al., 2011) with a recurrent learner: the greedy learner acts (the teacher instead on a
+    share of the steps that falls linearly from 1 to 0 over `dagger_beta_steps`), the teacher labels every
+    state, and each finished episode (its inputs and labels) is kept. After each round of finished episodes
+    the policy takes `dagger_updates` Adam steps of cross-entropy on `dagger_batch` kept episodes, replayed
+    through the GRU from a zero state. The value head is not trained. Returns the last step's loss."""
+    teacher = make_teacher(collector.env, args)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.dagger_learning_rate)
+    rng = np.random.default_rng(args.seed)
+    n, kept_x, kept_labels = collector.n, [], []
+    current = [([], []) for _ in range(n)]
+    state, last_loss = agent.initial_state(n), math.nan
+    while collector.global_step + n <= args.total_steps:
+        if stop_requested():
+            raise KeyboardInterrupt(f"stopped by Ctrl-C after {collector.global_step} env steps")
+        beta = max(0.0, 1.0 - collector.global_step / args.dagger_beta_steps) if args.dagger_beta_steps else 0.0
+        x, starts = collector.features(), collector.starts.clone()
+        label = teacher.act(collector.obs, collector.info, starts.numpy().astype(bool))
+        with torch.no_grad():
+            logits, _, state = agent(x[None], state, starts[None])
+        action = np.where(rng.random(n) < beta, label, logits[0].argmax(-1).numpy())
+        teacher.executed(action)
+        for i in range(n):
+            current[i][0].append(x[i])
+            current[i][1].append(int(label[i]))
+        _, ended = collector.step(action)
+        bar.update(n)
+        for i in np.flatnonzero(ended.numpy()):
+            kept_x.append(torch.stack(current[i][0]))
+            kept_labels.append(torch.tensor(current[i][1]))
+            current[i] = ([], [])
+        if ended.any():
+            for _ in range(args.dagger_updates):
+                chosen = rng.choice(len(kept_x), size=min(args.dagger_batch, len(kept_x)), replace=False)
+                xs = torch.stack([kept_x[k] for k in chosen], 1)  # (T, B, input_dim)
+                labels = torch.stack([kept_labels[k] for k in chosen], 1)
+                hidden, _ = agent.memory(xs, agent.initial_state(len(chosen)), torch.zeros(xs.shape[:2]))
+                loss = F.cross_entropy(agent.actor(hidden).flatten(0, 1), labels.flatten())
+                optimizer.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                optimizer.step()
+                last_loss = loss.item()
+            recent = collector.history[-20:]
+            bar.set_postfix(
+                beta=f"{beta:.2f}",
+                loss=f"{last_loss:.3f}",
+                success=f"{np.mean([h['success'] for h in recent]):.2f}",
+                at_end=f"{np.mean([h['success_final'] for h in recent]):.2f}",
+            )
+    return {"dagger_loss": last_loss, "episodes_kept": len(kept_x)}
+
+
+def imitate_teacher(agent: RecurrentActorCritic, collector: Collector, args: Args, bar) -> dict:
+    """Behaviour cloning before PPO: the teacher (by default the scripted servo: sweep, centre, approach;
+    acting on the training box) plays `demo_episodes` episodes per env; the agent's policy is fit to its actions (cross-entropy, through
     the GRU) and its value head, on the GRU's features held fixed, to the learner's discounted returns, over
     whole episodes for `demo_epochs` epochs (Adam at `demo_learning_rate`). Returns the losses of the first
     and the last epoch."""
-    servo = ServoPolicy(collector.env)
+    teacher = make_teacher(collector.env, args)
     steps, n = args.env.max_episode_steps, collector.n
     demo = Rollout.empty(args.demo_episodes * steps, n, agent.input_dim)
     for t in range(args.demo_episodes * steps):
         demo.x[t], demo.starts[t] = collector.features(), collector.starts
-        servo.sweep.direction[collector.starts.numpy().astype(bool)] = servo.sweep.first  # a new episode's sweep
-        action = servo.act(collector.obs, collector.info)
+        action = teacher.act(collector.obs, collector.info, collector.starts.numpy().astype(bool))
+        teacher.executed(action)
         demo.actions[t] = torch.as_tensor(action)
         demo.rewards[t], demo.ended[t] = collector.step(action)
         bar.update(n)
@@ -309,15 +482,19 @@ def train(args: Args, progress: bool = True) -> dict:
     collector = Collector(env, args, writer)
     rollout = Rollout.empty(steps, n, agent.input_dim)
     state = agent.initial_state(n)
-    demo_steps = args.demo_episodes * args.env.max_episode_steps * n
-    updates = (args.total_steps - demo_steps) // (n * steps)
-    servo = ServoPolicy(env)  # asked what it would do in the agent's own states (DAgger's expert)
+    ppo = args.algo == "ppo"
+    demo_steps = args.demo_episodes * args.env.max_episode_steps * n if ppo else 0
+    updates = (args.total_steps - demo_steps) // (n * steps) if ppo else 0
+    planned = demo_steps + updates * n * steps if ppo else args.total_steps // n * n
+    teacher = make_teacher(env, args)  # asked what it would do in the agent's own states (DAgger's expert)
     losses, demo_losses, demo_done, start = {}, {}, 0, time.time()
-    bar = tqdm(total=demo_steps + updates * n * steps, desc=f"search {os.path.basename(run_dir)}", disable=not progress)
+    bar = tqdm(total=planned, desc=f"search {os.path.basename(run_dir)}", disable=not progress)
     try:
         with stop_on_ctrl_c() as stop_requested:
-            if args.demo_episodes:
-                demo_losses = imitate_servo(agent, collector, args, bar)
+            if not ppo:
+                losses = dagger(agent, collector, args, bar, stop_requested)
+            if ppo and args.demo_episodes:
+                demo_losses = imitate_teacher(agent, collector, args, bar)
                 demo_done = len(collector.history)
                 bar.write(f"behaviour cloning: {demo_losses}")
             for update in range(updates):
@@ -332,14 +509,15 @@ def train(args: Args, progress: bool = True) -> dict:
                 rollout.first_state = state.clone()
                 for t in range(steps):
                     rollout.x[t], rollout.starts[t] = collector.features(), collector.starts
-                    servo.sweep.direction[collector.starts.numpy().astype(bool)] = servo.sweep.first
-                    rollout.expert[t] = torch.as_tensor(servo.act(collector.obs, collector.info))
+                    expert = teacher.act(collector.obs, collector.info, collector.starts.numpy().astype(bool))
+                    rollout.expert[t] = torch.as_tensor(expert)
                     with torch.no_grad():
                         logits, value, state = agent(rollout.x[t : t + 1], state, rollout.starts[t : t + 1])
                     distribution = torch.distributions.Categorical(logits=logits[0])
                     action = distribution.sample()
                     rollout.actions[t], rollout.logprobs[t] = action, distribution.log_prob(action)
                     rollout.values[t] = value[0]
+                    teacher.executed(action.numpy())
                     rollout.rewards[t], rollout.ended[t] = collector.step(action.numpy())
                     bar.update(n)
                 with torch.no_grad():  # the value of the state after the rollout, to bootstrap from
@@ -367,7 +545,7 @@ def train(args: Args, progress: bool = True) -> dict:
                 "seconds": time.time() - start,
                 "env_steps": collector.global_step,
                 "demo_env_steps": demo_steps,
-                "complete": collector.global_step == demo_steps + updates * n * steps,
+                "complete": collector.global_step == planned,
                 "losses": losses,
                 "demo_losses": demo_losses,
                 "history": [{**h, "demo": k < demo_done} for k, h in enumerate(collector.history)],

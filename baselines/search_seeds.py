@@ -4,7 +4,8 @@ exploration + the shipped DQN, the scripted servo and the DQN without exploratio
 table per seed with mean ± std and the worst seed, the learning curves (success vs env steps) and the
 camera's azimuth vs step beside the scripted sweep (docs/search.md).
 
-    python baselines/search_seeds.py --seeds 0 1 2 --total-steps 50000
+    python baselines/search_seeds.py --seeds 0 1 2 3 4                 # DAgger from the shipped agent, 20,000 steps
+    python baselines/search_seeds.py --train.algo ppo --train.teacher servo --total-steps 50000 --out-dir runs/search_ppo
     python baselines/search_seeds.py --report-only             # the table and figures from what is finished
 
 Runs are kept under `out_dir/seed<k>` and skipped when finished (a run stopped by Ctrl-C is trained again);
@@ -44,9 +45,9 @@ BOXES = ("fcn", "ground_truth")
 
 @dataclass
 class Args:
-    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
     """training seeds"""
-    total_steps: int = 50_000
+    total_steps: int = 20_000
     """env steps per training run"""
     train: search.Args = field(default_factory=search.Args)
     """the learner's options (seed, total steps and folder are this script's)"""
@@ -99,7 +100,10 @@ def train_seed(args: Args, seed: int):
 
 
 def eval_config(base: EnvConfig, args: Args, box: str) -> EnvConfig:
-    return base.replace(object_set=args.eval_object_set, box_source=box)
+    """`base` on the evaluation objects and this box: the FCN's as deployed (`EnvConfig.on_fcn_box`), or the
+    ground truth's as it is (nothing held)."""
+    base = base.replace(object_set=args.eval_object_set)
+    return base.on_fcn_box() if box == "fcn" else base.replace(box_source=box, box_hold_steps=0)
 
 
 def references(args: Args, box: str) -> dict[int, float]:

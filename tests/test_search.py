@@ -4,15 +4,27 @@ and the `memory` policy."""
 import dataclasses
 import json
 import os
+import types
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
 import mani_active_vision as mav
 from mani_active_vision.agents import search
-from mani_active_vision.agents.policies import MemoryPolicy, box_array, make_policy, policy_kwargs
-from mani_active_vision.agents.q_network import checkpoint_env_config
+from mani_active_vision.agents.policies import (
+    DOWN,
+    LEFT,
+    RIGHT,
+    STAY_INDEX,
+    UP,
+    MemoryPolicy,
+    box_array,
+    make_policy,
+    policy_kwargs,
+)
+from mani_active_vision.agents.q_network import checkpoint_env_config, load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim
 from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
@@ -81,7 +93,16 @@ def test_the_policy_resets_its_memory_at_an_episode_start():
 
 
 def test_a_short_training_run_on_workers_saves_an_agent_that_acts(tmp_path):
-    args = search.Args(env=SHORT, total_steps=48, num_steps=12, demo_episodes=1, demo_epochs=2, run_dir=str(tmp_path))
+    args = search.Args(
+        env=SHORT,
+        total_steps=48,
+        algo="ppo",
+        teacher="servo",
+        num_steps=12,
+        demo_episodes=1,
+        demo_epochs=2,
+        run_dir=str(tmp_path),
+    )
     result = search.train(args, progress=False)  # 2 worker processes: one servo episode each, then one PPO update
     assert len(result["history"]) == 4 and [h["env_step"] for h in result["history"]] == [24, 24, 48, 48]
     saved_history = json.loads((tmp_path / "seed0" / "history.json").read_text())
@@ -98,6 +119,61 @@ def test_a_short_training_run_on_workers_saves_an_agent_that_acts(tmp_path):
     assert 0 <= episode["final_target_fraction"] <= 1 and policy.last_action[0] in range(6)
 
 
+DQN_WEIGHTS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", "weights", "dqn.pt")
+
+
+def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
+    stand_in = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(6))
+    teacher = search.ExploreDQNTeacher(stand_in, DQN_WEIGHTS)
+    unseen, start, going = np.zeros((1, 7), np.float32), np.array([True]), np.array([False])
+    assert teacher.act(unseen, {}, start)[0] == LEFT  # the sweep's first direction
+    teacher.executed(np.array([UP]))
+    assert teacher.act(unseen, {"refused": np.array([True])}, going)[0] == LEFT  # not its direction refused
+    teacher.executed(np.array([LEFT]))
+    assert teacher.act(unseen, {"refused": np.array([True])}, going)[0] == RIGHT  # its own: it turns back
+    teacher.executed(np.array([RIGHT]))
+    seen = np.array([[0.3, 0.4, 0.1, 0.1, 0.5, 0.0, 0.6]], np.float32)  # the box, then the camera's position
+    q_network, config = load_q_network(DQN_WEIGHTS)
+    assert config["with_last_action"] and q_network.state_dim == 10
+
+    def greedy(box, last):  # the DQN on the box and a one-hot of its previous direction (none: zeros)
+        with torch.no_grad():
+            return q_network(torch.tensor([box + [float(a == last) for a in range(6)]])).argmax(-1).item()
+
+    # at the hand-over the DQN has no previous direction, as when it acts itself
+    assert teacher.act(seen, {}, going)[0] == greedy([0.3, 0.4, 0.1, 0.1], None)
+    teacher.executed(np.array([DOWN]))  # the learner went down: that is the DQN's previous direction now
+    assert teacher.act(unseen, {}, going)[0] == greedy([0.0] * 4, DOWN)  # latched: still the DQN, not the sweep
+    assert teacher.act(unseen, {}, start)[0] == LEFT  # a new episode: sweeping again
+    with_stay = types.SimpleNamespace(unwrapped=stand_in.unwrapped, action_space=gym.spaces.Discrete(7))
+    holding = search.ExploreDQNTeacher(with_stay, DQN_WEIGHTS, stays=True)  # a six-direction DQN, env with stay
+    holding.act(unseen, {}, start)
+    assert holding.act(seen, {"success": np.array([True])}, going)[0] == STAY_INDEX  # privileged: in success
+    holding.executed(np.array([STAY_INDEX]))
+    assert holding.act(seen, {"success": np.array([False])}, going)[0] == greedy([0.3, 0.4, 0.1, 0.1], None)
+
+
+def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
+    args = search.Args(
+        env=SHORT,
+        total_steps=48,
+        algo="dagger",
+        teacher=DQN_WEIGHTS,
+        dagger_beta_steps=24,
+        dagger_batch=2,
+        run_dir=str(tmp_path),
+    )
+    result = search.train(args, progress=False)  # 2 worker processes, 2 rounds of 2 episodes
+    saved = json.loads((tmp_path / "seed0" / "history.json").read_text())
+    assert saved["complete"] and saved["env_steps"] == 48 and saved["losses"]["episodes_kept"] == 4
+    assert np.isfinite(saved["losses"]["dagger_loss"])
+    torch.manual_seed(0)
+    untrained = RecurrentActorCritic(input_dim(6), 6, 64)
+    trained = torch.load(result["checkpoint"], weights_only=True)["state_dict"]
+    assert not torch.equal(trained["actor.weight"], untrained.actor.weight)
+    torch.testing.assert_close(trained["critic.0.weight"], untrained.critic[0].weight)  # DAgger fits no value
+
+
 def test_bad_options_are_named_with_the_valid_ones(tmp_path):
     with pytest.raises(ValueError, match="with_ee_pos must be True"):
         search.check(search.Args(env=EnvConfig()))
@@ -105,8 +181,16 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
         search.check(dataclasses.replace(search.Args(), shaping="x"))
     with pytest.raises(ValueError, match="num_envs=3 must be a positive multiple of num_minibatches=2"):
         search.check(dataclasses.replace(search.Args(), num_envs=3))
-    with pytest.raises(ValueError, match="total_steps=1000 is less than the servo's episodes and one rollout"):
-        search.check(dataclasses.replace(search.Args(), total_steps=1000))
+    with pytest.raises(ValueError, match="total_steps=1000 is less than the teacher's episodes and one rollout"):
+        search.check(dataclasses.replace(search.Args(), algo="ppo", total_steps=1000))
+    with pytest.raises(ValueError, match="total_steps=100 is less than one episode per env"):
+        search.check(dataclasses.replace(search.Args(), total_steps=100))
+    with pytest.raises(ValueError, match="algo='sac' is not one of: ppo, dagger"):
+        search.check(dataclasses.replace(search.Args(), algo="sac"))
+    with pytest.raises(ValueError, match="teacher='nope.pt' is neither servo nor a DQN checkpoint"):
+        search.check(dataclasses.replace(search.Args(), teacher="nope.pt"))
+    with pytest.raises(ValueError, match="teacher_stays takes `stay`: it needs env.stay_action"):
+        search.check(dataclasses.replace(search.Args(), teacher_stays=True))
     with pytest.raises(ValueError, match="needs a checkpoint"):
         policy_kwargs("memory")
     with pytest.raises(FileNotFoundError, match="does not exist"):
@@ -124,7 +208,7 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     config = torch.load(path, weights_only=True)["config"]
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
-    assert deployed == trained.replace(box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE)
+    assert deployed == trained.on_fcn_box().replace(object_set="unseen") and deployed.image_size == FCN_IMAGE_SIZE
     env = mav.make_env(deployed.replace(max_episode_steps=10))
     try:
         policy = make_policy("memory", env, checkpoint=path)
