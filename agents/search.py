@@ -370,13 +370,12 @@ def make_teacher(env, args: Args):
     return ExploreDQNTeacher(env, args.teacher, args.teacher_stays)
 
 
-def dagger(agent: RecurrentActorCritic, collector: Collector, args: Args, bar, stop_requested) -> dict:
+def dagger(agent: RecurrentActorCritic, collector: Collector, teacher, args: Args, bar, stop_requested) -> dict:
     """DAgger (Ross et al., 2011) with a recurrent learner: the greedy learner acts (the teacher instead on a
     share of the steps that falls linearly from 1 to 0 over `dagger_beta_steps`), the teacher labels every
     state, and each finished episode (its inputs and labels) is kept. After each round of finished episodes
     the policy takes `dagger_updates` Adam steps of cross-entropy on `dagger_batch` kept episodes, replayed
     through the GRU from a zero state. The value head is not trained. Returns the last step's loss."""
-    teacher = make_teacher(collector.env, args)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.dagger_learning_rate)
     rng = np.random.default_rng(args.seed)
     n, kept_x, kept_labels = collector.n, [], []
@@ -423,13 +422,12 @@ def dagger(agent: RecurrentActorCritic, collector: Collector, args: Args, bar, s
     return {"dagger_loss": last_loss, "episodes_kept": len(kept_x)}
 
 
-def imitate_teacher(agent: RecurrentActorCritic, collector: Collector, args: Args, bar) -> dict:
+def imitate_teacher(agent: RecurrentActorCritic, collector: Collector, teacher, args: Args, bar) -> dict:
     """Behaviour cloning before PPO: the teacher (by default the scripted servo: sweep, centre, approach;
     acting on the training box) plays `demo_episodes` episodes per env; the agent's policy is fit to its actions (cross-entropy, through
     the GRU) and its value head, on the GRU's features held fixed, to the learner's discounted returns, over
     whole episodes for `demo_epochs` epochs (Adam at `demo_learning_rate`). Returns the losses of the first
     and the last epoch."""
-    teacher = make_teacher(collector.env, args)
     steps, n = args.env.max_episode_steps, collector.n
     demo = Rollout.empty(args.demo_episodes * steps, n, agent.input_dim)
     for t in range(args.demo_episodes * steps):
@@ -492,9 +490,9 @@ def train(args: Args, progress: bool = True) -> dict:
     try:
         with stop_on_ctrl_c() as stop_requested:
             if not ppo:
-                losses = dagger(agent, collector, args, bar, stop_requested)
+                losses = dagger(agent, collector, teacher, args, bar, stop_requested)
             if ppo and args.demo_episodes:
-                demo_losses = imitate_teacher(agent, collector, args, bar)
+                demo_losses = imitate_teacher(agent, collector, teacher, args, bar)
                 demo_done = len(collector.history)
                 bar.write(f"behaviour cloning: {demo_losses}")
             for update in range(updates):
