@@ -236,10 +236,15 @@ class MemoryPolicy:
                 "train and act with the same stay_action"
             )
         box_dim = box_array(env.observation_space.sample()).shape[-1]
-        if box_dim != 7:
+        if box_dim not in (7, 10):
             raise ValueError(
                 f"the memory agent acts on the box and the camera's commanded position (7 numbers), the env gives "
                 f"{box_dim}: make it with EnvConfig(with_ee_pos=True)"
+            )
+        if self.agent.input_dim != box_dim + 1 + self.num_actions:
+            raise ValueError(
+                f"the memory agent takes {self.agent.input_dim} inputs, the env's box state gives "
+                f"{box_dim + 1 + self.num_actions}: train and act with the same with_mask_stats"
             )
         self.sample = sample
         self.generator = torch.Generator().manual_seed(seed)

@@ -21,27 +21,30 @@ import numpy as np
 import torch
 import torch.nn as nn
 
-BOX_DIM, POSITION_DIM = 4, 4
-"""The box (x, y, w, h) and the camera's commanded position as (sin azimuth, cos azimuth, radius, height)."""
+BOX_DIM, POSITION_DIM, MASK_STATS_DIM = 4, 4, 3
+"""The box (x, y, w, h), the camera's commanded position as (sin azimuth, cos azimuth, radius, height) and,
+with `EnvConfig(with_mask_stats=True)`, the mask's share of the image and its centroid's offset (dx, dy)."""
 
 
-def input_dim(num_actions: int) -> int:
-    return BOX_DIM + POSITION_DIM + num_actions
+def input_dim(num_actions: int, with_mask_stats: bool = False) -> int:
+    return BOX_DIM + POSITION_DIM + MASK_STATS_DIM * with_mask_stats + num_actions
 
 
 def features(box_state: np.ndarray, last_action: np.ndarray, num_actions: int) -> np.ndarray:
     """The network's input (N, input_dim) from the box state with the camera's commanded position (N, 7:
-    `EnvConfig(with_ee_pos=True)`) and each env's previous action (N,), -1 at an episode's start."""
-    if box_state.shape[-1] != BOX_DIM + 3:
+    `EnvConfig(with_ee_pos=True)`; 10 with the mask stats, `with_mask_stats`) and each env's previous action
+    (N,), -1 at an episode's start."""
+    if box_state.shape[-1] not in (BOX_DIM + 3, BOX_DIM + 3 + MASK_STATS_DIM):
         raise ValueError(
             f"the memory agent needs the box with the camera's commanded position (7 numbers, "
-            f"EnvConfig(with_ee_pos=True)), got {box_state.shape[-1]}"
+            f"EnvConfig(with_ee_pos=True); 10 with_mask_stats), got {box_state.shape[-1]}"
         )
     x, y, z = box_state[:, 4], box_state[:, 5], box_state[:, 6]
     azimuth = np.arctan2(y, x)
     position = np.stack([np.sin(azimuth), np.cos(azimuth), np.hypot(x, y), z], -1)
     one_hot = (last_action[:, None] == np.arange(num_actions)).astype(np.float32)
-    return np.concatenate([box_state[:, :BOX_DIM], position, one_hot], -1).astype(np.float32)
+    stats = box_state[:, BOX_DIM + 3 :]
+    return np.concatenate([box_state[:, :BOX_DIM], position, stats, one_hot], -1).astype(np.float32)
 
 
 def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias: float = 0.0) -> nn.Linear:

@@ -149,6 +149,14 @@ class Args:
     teacher_stays: bool = False
     """the teacher takes `stay` (the env needs stay_action) while the task reports success: privileged (the
     ground truth's success), a teacher that shows holding"""
+    teacher_box: str = "observed"
+    """the box the teacher acts on: observed (the learner's, env.box_source) or ground_truth (the
+    segmentation's, from the task's info: privileged, so that a learner on the FCN's box is labelled by a
+    teacher that sees the target as it is)"""
+    teacher_stay_margin: float = 0.0
+    """with teacher_stays and a DQN teacher: it stays only where success holds with this margin (the target's
+    share at least (1 + m) times env.success_fraction, its centre offset at most (1 - m) times
+    env.success_center_tol), so that the learner's stay, learnt from the box alone, errs inside success"""
     dagger_beta_steps: int = 10_000
     """dagger: env steps over which the share of steps on which the teacher's action is taken instead of the
     learner's falls linearly from 1 to 0"""
@@ -167,6 +175,7 @@ class Args:
 
 
 ALGOS = ("ppo", "dagger")
+TEACHER_BOXES = ("observed", "ground_truth")
 
 
 def check(args: Args):
@@ -188,6 +197,12 @@ def check(args: Args):
         raise ValueError(f"teacher={args.teacher!r} is neither servo nor a DQN checkpoint file")
     if args.teacher_stays and not args.env.stay_action:
         raise ValueError("teacher_stays takes `stay`: it needs env.stay_action")
+    if args.teacher_box not in TEACHER_BOXES:
+        raise ValueError(f"teacher_box={args.teacher_box!r} is not one of: {', '.join(TEACHER_BOXES)}")
+    if not 0 <= args.teacher_stay_margin < 1:
+        raise ValueError(f"teacher_stay_margin={args.teacher_stay_margin} must be in [0, 1)")
+    if args.teacher_stay_margin and (not args.teacher_stays or args.teacher == "servo"):
+        raise ValueError("teacher_stay_margin needs teacher_stays and a DQN teacher (not servo)")
     if args.shaping not in SHAPINGS:
         raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
     if args.num_envs < 1 or args.num_envs % args.num_minibatches:
@@ -322,11 +337,14 @@ class ExploreDQNTeacher:
     follows the learner's trajectory: the hand-over latches on the learner's first sighting and the DQN's
     previous direction is the one the learner took, as it would be had the DQN acted. The DQN sees the box
     alone (x, y, w, h), as it was trained. With `stays` (the env has `stay`, the DQN may not) it takes `stay`
-    while the task reports success; a `stay` is no previous direction for a six-direction DQN."""
+    while the task reports success and the target's share is at least `stay_limits[0]` and its centre offset
+    at most `stay_limits[1]` (`Args.teacher_stay_margin`); a `stay` is no previous direction for a
+    six-direction DQN."""
 
-    def __init__(self, env, checkpoint: str, stays: bool = False):
+    def __init__(self, env, checkpoint: str, stays: bool = False, stay_limits: tuple[float, float] = (0.0, 1.0)):
         self.q_network, config = load_q_network(checkpoint)
         self.n, self.actions, self.stays = env.unwrapped.num_envs, num_actions(env), stays
+        self.stay_fraction, self.stay_offset = stay_limits
         self.with_last_action = bool(config.get("with_last_action", False))
         q_actions = self.q_network.num_actions
         expected = 4 + (q_actions if self.with_last_action else 0)
@@ -355,7 +373,12 @@ class ExploreDQNTeacher:
             greedy = self.q_network(torch.as_tensor(state)).argmax(-1).numpy()
         action = np.where(self.handed_over, greedy, self.direction)
         if self.stays:
-            action[info_flags(info, "success", self.n) & ~starts] = STAY_INDEX
+            stay = info_flags(info, "success", self.n) & ~starts
+            if stay.any():
+                stay &= (info_values(info, "target_fraction", self.n) >= self.stay_fraction) & (
+                    info_values(info, "target_center_offset", self.n) <= self.stay_offset
+                )
+            action[stay] = STAY_INDEX
         return action.astype(np.int64)
 
     def executed(self, action: np.ndarray):
@@ -364,10 +387,37 @@ class ExploreDQNTeacher:
         self.last_action = np.where(self.handed_over, self.executed_action, -1)
 
 
+class GroundTruthBoxTeacher:
+    """A teacher shown the ground truth's box (the task's `info["target_bbox"]`, from the segmentation) in place
+    of the learner's, the camera's position kept: privileged labels for a learner on the FCN's box."""
+
+    def __init__(self, teacher):
+        self.teacher = teacher
+
+    def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
+        state = box_array(obs).copy()
+        state[:, :4] = np.asarray(info["target_bbox"], dtype=np.float32).reshape(len(state), 4)
+        return self.teacher.act(state, info, starts)
+
+    def executed(self, action: np.ndarray):
+        self.teacher.executed(action)
+
+
 def make_teacher(env, args: Args):
     if args.teacher == "servo":
-        return ServoTeacher(env, args.teacher_stays)
-    return ExploreDQNTeacher(env, args.teacher, args.teacher_stays)
+        teacher = ServoTeacher(env, args.teacher_stays)
+    else:
+        margin = args.teacher_stay_margin
+        limits = ((1 + margin) * args.env.success_fraction, (1 - margin) * args.env.success_center_tol)
+        teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits)
+    return GroundTruthBoxTeacher(teacher) if args.teacher_box == "ground_truth" else teacher
+
+
+def info_values(info, key: str, num_envs: int) -> np.ndarray:
+    """`info[key]` per env as floats."""
+    values = info[key]
+    values = values.cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
+    return np.atleast_1d(values).astype(np.float64).reshape(num_envs)
 
 
 def dagger(agent: RecurrentActorCritic, collector: Collector, teacher, args: Args, bar, stop_requested) -> dict:
@@ -475,7 +525,7 @@ def train(args: Args, progress: bool = True) -> dict:
     n, steps = args.num_envs, args.num_steps
     env = make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)
-    agent = RecurrentActorCritic(input_dim(actions), actions, args.hidden_units)
+    agent = RecurrentActorCritic(input_dim(actions, args.env.with_mask_stats), actions, args.hidden_units)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
     collector = Collector(env, args, writer)
     rollout = Rollout.empty(steps, n, agent.input_dim)

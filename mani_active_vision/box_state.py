@@ -24,7 +24,9 @@ BOX_SOURCES = ("ground_truth", "fcn", "projection")
 
 class BoxState(gym.ObservationWrapper):
     """Observation = (x, y, w, h) of the target's box, normalised, zeros when not seen; with
-    `with_ee_pos`, the camera's commanded position (x, y, z in m) is appended (the paper's "link state").
+    `with_ee_pos`, the camera's commanded position (x, y, z in m) is appended (the paper's "link state");
+    with `with_mask_stats`, then the mask's share of the image and its centroid's offset from the image
+    centre (dx, dy as fractions of the width), zeros when unseen: the quantities success is judged on.
 
     Batched ManiSkill envs give a torch tensor (N, 4 or 7); a numpy env (`CPUGymWrapper`) gives (4 or 7,).
     `last_mask`: (N, H, W) bool torch tensor, the target mask of the latest observation (ground truth or FCN).
@@ -43,6 +45,7 @@ class BoxState(gym.ObservationWrapper):
         env: gym.Env,
         source: str = "ground_truth",
         with_ee_pos: bool = False,
+        with_mask_stats: bool = False,
         segmenter=None,
         thresholds: tuple[float, float] = (0.0, 0.0),
         hold_steps: int = 0,
@@ -68,11 +71,12 @@ class BoxState(gym.ObservationWrapper):
         self.last_observation: dict | None = None
         self.source = source
         self.with_ee_pos = with_ee_pos
+        self.with_mask_stats = with_mask_stats
         self.thresholds = tuple(thresholds)
         self.hold_steps = hold_steps
-        self._held: torch.Tensor | None = None  # (N, 4): the last box seen in each env's episode
+        self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
-        dim = 7 if with_ee_pos else 4
+        dim = 4 + 3 * with_ee_pos + 3 * with_mask_stats
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
         shape = (dim,) if self._numpy else (env.unwrapped.num_envs, dim)
@@ -115,16 +119,18 @@ class BoxState(gym.ObservationWrapper):
             presence = mask.flatten(1).any(1).float()
         self.last_mask, self.last_presence = mask, presence
         state = mask_to_box(mask)
+        if self.with_mask_stats:
+            state = torch.cat([state, mask_stats(mask)], -1)
         if self.hold_steps:
             state = self._hold(state)
         if self.with_ee_pos:
-            state = torch.cat([state, base.agent.controller.target_pos.to(state.device)], -1)
+            state = torch.cat([state[:, :4], base.agent.controller.target_pos.to(state.device), state[:, 4:]], -1)
         if self._numpy:
             return state[0].cpu().numpy()
         return state
 
     def _hold(self, box: torch.Tensor) -> torch.Tensor:
-        """`box`, with the last box seen in place of an empty one for up to `hold_steps` steps."""
+        """`box` (with its mask stats), the last one seen in place of an empty one for up to `hold_steps` steps."""
         seen = box[:, 2] > 0
         if self._held is None:
             self._held = torch.zeros_like(box)
@@ -133,6 +139,19 @@ class BoxState(gym.ObservationWrapper):
         self._held = torch.where(seen[:, None], box, self._held)
         use = ~seen & (self._unseen_for <= self.hold_steps)
         return torch.where(use[:, None], self._held, box)
+
+
+def mask_stats(mask: torch.Tensor) -> torch.Tensor:
+    """(N, 3): each mask's share of the image and its centroid's offset from the image centre (dx, dy, as
+    fractions of the width, as the task's `center_offset` is); zeros for an empty mask."""
+    n, h, w = mask.shape
+    area = mask.sum((1, 2)).float()
+    safe = area.clamp(min=1)
+    cy = (mask.sum(2).float() * (torch.arange(h, device=mask.device) + 0.5)).sum(1) / safe
+    cx = (mask.sum(1).float() * (torch.arange(w, device=mask.device) + 0.5)).sum(1) / safe
+    seen = area > 0
+    offset = torch.stack([(cx - w / 2) / w, (cy - h / 2) / w], -1) * seen[:, None]
+    return torch.cat([(area / (h * w))[:, None], offset], -1)
 
 
 def check_thresholds(thresholds) -> None:

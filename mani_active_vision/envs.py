@@ -80,6 +80,10 @@ class EnvConfig:
     steps (0: off): the FCN misses a third of the target's views, mostly small or cut ones (docs/control.md)"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
+    with_mask_stats: bool = False
+    """append, after the camera's position, the box source's mask's share of the image and its centroid's
+    offset from the image centre (dx, dy, fractions of the width; zeros when unseen): what success is judged
+    on, which the box alone does not give (docs/search.md)"""
     occluders: int = 0
     """upright panels that hide objects from the search height, one in front of each of the first
     `occluders` objects (0 to num_objects; docs/task.md#occluders)"""
@@ -92,6 +96,8 @@ class EnvConfig:
             raise ValueError(f"box_source={self.box_source!r} is not one of: {', '.join(BOX_SOURCE_CHOICES)}")
         if self.with_ee_pos and self.box_source == "none":
             raise ValueError("with_ee_pos appends to the box state: it needs box_source ground_truth or fcn")
+        if self.with_mask_stats and self.box_source == "none":
+            raise ValueError("with_mask_stats appends to the box state: it needs box_source ground_truth or fcn")
         if not (isinstance(self.image_size, int) and self.image_size >= 8):
             raise ValueError(f"image_size={self.image_size!r} must be an integer of at least 8")
         for name in ("fcn_acquire_threshold", "fcn_track_threshold"):
@@ -154,6 +160,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         env,
         source=config.box_source,
         with_ee_pos=config.with_ee_pos,
+        with_mask_stats=config.with_mask_stats,
         segmenter=segmenter,
         thresholds=(config.fcn_acquire_threshold, config.fcn_track_threshold),
         hold_steps=config.box_hold_steps,

@@ -61,6 +61,11 @@ def test_features_are_the_box_the_camera_position_and_the_last_action():
     np.testing.assert_allclose(x[0, :8], [0.1, 0.2, 0.3, 0.4, 1.0, 0.0, 0.5, 0.9], atol=1e-6)
     assert x[0, 8:].tolist() == [0, 0, 1, 0, 0, 0]
     assert features(box_state, np.array([-1]), 6)[0, 8:].sum() == 0  # an episode's start: no previous action
+    with_stats = np.concatenate([box_state, [[0.06, 0.1, -0.05]]], 1).astype(np.float32)  # share, dx, dy
+    x = features(with_stats, np.array([2]), 6)
+    assert x.shape == (1, input_dim(6, with_mask_stats=True))
+    np.testing.assert_allclose(x[0, 8:11], [0.06, 0.1, -0.05], atol=1e-6)
+    assert x[0, 11:].tolist() == [0, 0, 1, 0, 0, 0]
     with pytest.raises(ValueError, match="with_ee_pos=True"):
         features(box_state[:, :4], np.array([-1]), 6)
 
@@ -148,9 +153,16 @@ def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
     with_stay = types.SimpleNamespace(unwrapped=stand_in.unwrapped, action_space=gym.spaces.Discrete(7))
     holding = search.ExploreDQNTeacher(with_stay, DQN_WEIGHTS, stays=True)  # a six-direction DQN, env with stay
     holding.act(unseen, {}, start)
-    assert holding.act(seen, {"success": np.array([True])}, going)[0] == STAY_INDEX  # privileged: in success
+    in_success = {"success": np.array([True]), "target_fraction": np.array([0.06]), "target_center_offset": [0.05]}
+    assert holding.act(seen, in_success, going)[0] == STAY_INDEX  # privileged: in success
     holding.executed(np.array([STAY_INDEX]))
     assert holding.act(seen, {"success": np.array([False])}, going)[0] == greedy([0.3, 0.4, 0.1, 0.1], None)
+    wary = search.ExploreDQNTeacher(with_stay, DQN_WEIGHTS, stays=True, stay_limits=(0.065, 0.105))
+    wary.act(unseen, {}, start)
+    assert wary.act(seen, in_success, going)[0] == greedy([0.3, 0.4, 0.1, 0.1], None)  # in success, no margin
+    well_inside = {**in_success, "target_fraction": np.array([0.07])}
+    assert wary.act(seen, well_inside, going)[0] == STAY_INDEX
+    assert wary.act(seen, {**well_inside, "target_center_offset": [0.12]}, going)[0] != STAY_INDEX
 
 
 def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
@@ -191,6 +203,10 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
         search.check(dataclasses.replace(search.Args(), teacher="nope.pt"))
     with pytest.raises(ValueError, match="teacher_stays takes `stay`: it needs env.stay_action"):
         search.check(dataclasses.replace(search.Args(), teacher_stays=True))
+    with pytest.raises(ValueError, match=r"teacher_stay_margin=1.5 must be in \[0, 1\)"):
+        search.check(dataclasses.replace(search.Args(), teacher_stay_margin=1.5))
+    with pytest.raises(ValueError, match="teacher_stay_margin needs teacher_stays and a DQN teacher"):
+        search.check(dataclasses.replace(search.Args(), teacher_stay_margin=0.3))
     with pytest.raises(ValueError, match="needs a checkpoint"):
         policy_kwargs("memory")
     with pytest.raises(FileNotFoundError, match="does not exist"):
@@ -199,6 +215,13 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
     try:
         with pytest.raises(ValueError, match="with_ee_pos=True"):
             MemoryPolicy(env, agent=RecurrentActorCritic(input_dim(6), 6, 8))
+    finally:
+        env.close()
+    env = mav.make_env(EnvConfig(max_episode_steps=5, with_ee_pos=True, with_mask_stats=True))
+    try:
+        with pytest.raises(ValueError, match="takes 14 inputs, the env's box state gives 17"):
+            MemoryPolicy(env, agent=RecurrentActorCritic(input_dim(6), 6, 8))
+        MemoryPolicy(env, agent=RecurrentActorCritic(input_dim(6, with_mask_stats=True), 6, 8))
     finally:
         env.close()
 

@@ -3,6 +3,7 @@
 import gymnasium as gym
 import h5py
 import numpy as np
+import pytest
 import torch
 from conftest import cached_task
 from gymnasium.utils.env_checker import check_env
@@ -10,7 +11,7 @@ from mani_skill.utils.wrappers import RecordEpisode
 from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
 import mani_active_vision as mav
-from mani_active_vision.box_state import BoxState
+from mani_active_vision.box_state import BoxState, mask_stats
 from mani_active_vision.envs import ENV_ID, EnvConfig
 
 
@@ -59,3 +60,26 @@ def test_box_state_matches_the_ground_truth_box():
     obs, _ = numpy_env.reset(seed=0)
     assert isinstance(obs, np.ndarray) and obs.shape == (4,) and numpy_env.observation_space.contains(obs)
     numpy_env.close()
+
+
+def test_the_mask_stats_are_what_success_is_judged_on():
+    mask = torch.zeros(2, 8, 8, dtype=torch.bool)
+    mask[0, 2:4, 4:8] = True  # 8 pixels, centroid (6, 3): 0.25 right of the centre, 0.125 above
+    torch.testing.assert_close(mask_stats(mask), torch.tensor([[0.125, 0.25, -0.125], [0.0, 0.0, 0.0]]))
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed"))
+    env = BoxState(task, with_ee_pos=True, with_mask_stats=True)
+    obs, info = env.reset(seed=0)
+    seen = 0
+    for a in [0, 0, 0, 2, 2, 2]:
+        obs, _, _, _, info = env.step(a)
+        assert obs.shape == (1, 10) and env.observation_space.shape == (1, 10)
+        assert torch.allclose(obs[:, :4], info["target_bbox"])  # the box and the position stay where they were
+        assert torch.allclose(obs[:, 4:7], env.unwrapped.agent.controller.target_pos)
+        share, dx, dy = obs[0, 7:]
+        torch.testing.assert_close(share, info["target_fraction"][0])
+        if share > 0:
+            seen += 1
+            torch.testing.assert_close(torch.hypot(dx, dy), info["target_center_offset"][0])
+    assert seen > 0
+    with pytest.raises(ValueError, match="with_mask_stats appends to the box state"):
+        EnvConfig(box_source="none", with_mask_stats=True)
