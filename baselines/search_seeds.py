@@ -90,12 +90,21 @@ def seed_dir(args: Args, seed: int) -> str:
 
 
 def train_seed(args: Args, seed: int):
+    """Train one seed, unless its folder holds a finished run with these options (one with others is an
+    error: its evaluations would be taken for this configuration's)."""
     history = os.path.join(seed_dir(args, seed), "history.json")
-    if os.path.exists(history) and read_json(history)["complete"]:
-        return
     options = dataclasses.replace(
         args.train, seed=seed, total_steps=args.total_steps, run_dir=args.out_dir, run_name=f"seed{seed}"
     )
+    if os.path.exists(history) and read_json(history)["complete"]:
+        saved, wanted = read_json(history)["config"], json.loads(json.dumps(dataclasses.asdict(options)))
+        differ = sorted(k for k in wanted if saved.get(k) != wanted[k])
+        if differ:
+            raise ValueError(
+                f"{seed_dir(args, seed)} holds a finished run with other options ({', '.join(differ)}): "
+                "choose another --out-dir or remove that folder"
+            )
+        return
     search.train(options)
 
 
@@ -239,7 +248,8 @@ def plot_learning_curves(args: Args, path: str, bin_steps: int = 5_000):
         ax.text(demo_steps, 0.95, " PPO from here (before: the servo's episodes, cloned)", fontsize=7, color="grey")
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"training episodes' share ({bin_steps:,}-step bins)")
-    ax.set_title("memory agent (recurrent PPO), ground-truth box, train objects")
+    learner = {"ppo": "recurrent PPO", "dagger": "DAgger"}[args.train.algo]
+    ax.set_title(f"memory agent ({learner}), ground-truth box, train objects")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend()
