@@ -231,6 +231,7 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     config = torch.load(path, weights_only=True)["config"]
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
+    assert deployed.stay_action and deployed.with_mask_stats and config["teacher_stay_margin"] == 0.3
     assert deployed == trained.on_fcn_box().replace(object_set="unseen") and deployed.image_size == FCN_IMAGE_SIZE
     env = mav.make_env(deployed.replace(max_episode_steps=10))
     try:
@@ -238,4 +239,4 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
         evaluate(env, policy, [1_000_000], with_reference=False, progress=False)
     finally:
         env.close()
-    assert policy.last_action[0] in range(6)
+    assert policy.last_action[0] in range(7)
