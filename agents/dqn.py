@@ -266,13 +266,15 @@ MIRRORED_ACTION = np.array([ACTIONS.index({"left": "right", "right": "left"}.get
 comes last, so the first six entries are the table of the six directions alone."""
 
 
-def mirror_state(state: np.ndarray) -> np.ndarray:
+def mirror_state(state: np.ndarray, mask_stats: bool = False) -> np.ndarray:
     """The state of the left-right mirrored situation: the box (x, y, w, h) of the mirrored image (zeros,
-    the unseen state, stay zeros) and, if present, the last action's one-hot (6 or 7 long) with left and
-    right swapped."""
+    the unseen state, stay zeros), with `mask_stats` the mask's share and centroid offset (share, -dx, dy),
+    and, if present, the last action's one-hot (6 or 7 long) with left and right swapped."""
     x, y, w, h = state[:4]
     box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
-    return np.concatenate([box, state[4:][MIRRORED_ACTION[: len(state) - 4]]]) if len(state) > 4 else box
+    stats = state[4:7] * np.array([1.0, -1.0, 1.0], np.float32) if mask_stats else state[4:4]
+    rest = state[4 + len(stats) :]
+    return np.concatenate([box, stats, rest[MIRRORED_ACTION[: len(rest)]]]).astype(np.float32)
 
 
 SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
@@ -507,7 +509,13 @@ def train(args: Args, progress: bool = True) -> dict:
                         for s0, a0, discounted, s_n, final, steps in pushed:
                             buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
                             if args.mirror_augment:
-                                mirrored = (mirror_state(s0), MIRRORED_ACTION[a0], discounted, mirror_state(s_n))
+                                stats = args.env.with_mask_stats
+                                mirrored = (
+                                    mirror_state(s0, stats),
+                                    MIRRORED_ACTION[a0],
+                                    discounted,
+                                    mirror_state(s_n, stats),
+                                )
                                 buffer.add(*mirrored, final, steps, mixed.demo[i])
                         learner_steps[i] += 1
                     running[i] = not done

@@ -68,6 +68,10 @@ def test_a_short_training_run_with_stay_stores_seven_actions(tmp_path):
     np.testing.assert_allclose(dqn.mirror_state(last_stay), [0.6, 0.2, 0.3, 0.4, 0, 0, 0, 0, 0, 0, 1])
     last_left = np.array([0.1, 0.2, 0.3, 0.4, 1, 0, 0, 0, 0, 0, 0])
     np.testing.assert_allclose(dqn.mirror_state(last_left), [0.6, 0.2, 0.3, 0.4, 0, 1, 0, 0, 0, 0, 0])
+    with_stats = np.array([0.1, 0.2, 0.3, 0.4, 0.06, -0.2, 0.05, 1, 0, 0, 0, 0, 0, 0])  # share, dx, dy; then LEFT
+    np.testing.assert_allclose(
+        dqn.mirror_state(with_stats, mask_stats=True), [0.6, 0.2, 0.3, 0.4, 0.06, 0.2, 0.05, 0, 1, 0, 0, 0, 0, 0]
+    )
 
 
 def test_the_planners_steps_are_the_envs_steps_and_reverse_exactly():
