@@ -13,7 +13,8 @@ The paper's DQN without its scripted exploration "completely fails" on random pl
 the next step: memory (a sequence model) so that the agent learns to explore. This is that agent:
 - input at every step (`agents.recurrent_network.features`): the target's box (zeros when unseen), the
   camera's commanded position (azimuth as sine and cosine, radius, height: where it has looked; the env is
-  made with `with_ee_pos`) and a one-hot of its own previous action;
+  made with `with_ee_pos`), with `env.with_mask_stats` the mask's share of the image and its centroid's
+  offset (where success begins: the shipped agent's), and a one-hot of its own previous action;
 - a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (whole
   sequences replayed with the same resets) and in evaluation;
 - the teacher (`teacher`): the shipped agent, the scripted exploration handing over to the DQN of

@@ -165,6 +165,18 @@ def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
     assert wary.act(seen, {**well_inside, "target_center_offset": [0.12]}, going)[0] != STAY_INDEX
 
 
+def test_a_ground_truth_box_teacher_sees_the_segmentations_box_and_the_learners_position():
+    seen = []
+    stub = types.SimpleNamespace(act=lambda obs, info, starts: seen.append(obs) or np.zeros(2, np.int64))
+    teacher = search.GroundTruthBoxTeacher(stub)
+    learner_obs = torch.tensor([[0.5, 0.5, 0.1, 0.1, 0.3, 0.0, 0.9], [0.0, 0.0, 0.0, 0.0, 0.2, 0.1, 0.8]])
+    truth = torch.tensor([[0.0, 0.0, 0.0, 0.0], [0.2, 0.3, 0.1, 0.2]])  # the FCN saw a look-alike, then missed
+    teacher.act(learner_obs, {"target_bbox": truth}, np.array([False, False]))
+    np.testing.assert_allclose(seen[0][:, :4], truth.numpy())
+    np.testing.assert_allclose(seen[0][:, 4:], learner_obs[:, 4:].numpy())
+    assert learner_obs[0, 0] == 0.5  # the learner's own observation is left as it was
+
+
 def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
     args = search.Args(
         env=SHORT,
