@@ -509,12 +509,11 @@ def train(args: Args, progress: bool = True) -> dict:
                         for s0, a0, discounted, s_n, final, steps in pushed:
                             buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
                             if args.mirror_augment:
-                                stats = args.env.with_mask_stats
                                 mirrored = (
-                                    mirror_state(s0, stats),
+                                    mirror_state(s0, args.env.with_mask_stats),
                                     MIRRORED_ACTION[a0],
                                     discounted,
-                                    mirror_state(s_n, stats),
+                                    mirror_state(s_n, args.env.with_mask_stats),
                                 )
                                 buffer.add(*mirrored, final, steps, mixed.demo[i])
                         learner_steps[i] += 1

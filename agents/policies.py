@@ -48,13 +48,18 @@ def num_actions(env) -> int:
     return int(space.n) if isinstance(space, gym.spaces.Discrete) else int(space.nvec[0])
 
 
+def info_values(info, key: str, num_envs: int) -> np.ndarray:
+    """`info[key]` (e.g. "target_fraction") per env as a numpy array (N,)."""
+    values = info[key]
+    values = values.cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
+    return np.atleast_1d(values).reshape(num_envs)
+
+
 def info_flags(info, key: str, num_envs: int) -> np.ndarray:
     """`info[key]` (e.g. "refused", "success") per env as bools (False at reset, when `info` lacks it)."""
     if not info or key not in info:
         return np.zeros(num_envs, dtype=bool)
-    flags = info[key]
-    flags = flags.cpu().numpy() if isinstance(flags, torch.Tensor) else np.asarray(flags)
-    return np.atleast_1d(flags).astype(bool)
+    return info_values(info, key, num_envs).astype(bool)
 
 
 class RandomPolicy:

@@ -66,6 +66,7 @@ from mani_active_vision.agents.policies import (
     ServoPolicy,
     box_array,
     info_flags,
+    info_values,
     num_actions,
 )
 from mani_active_vision.agents.q_network import load_q_network
@@ -412,13 +413,6 @@ def make_teacher(env, args: Args):
         limits = ((1 + margin) * args.env.success_fraction, (1 - margin) * args.env.success_center_tol)
         teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits)
     return GroundTruthBoxTeacher(teacher) if args.teacher_box == "ground_truth" else teacher
-
-
-def info_values(info, key: str, num_envs: int) -> np.ndarray:
-    """`info[key]` per env as floats."""
-    values = info[key]
-    values = values.cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
-    return np.atleast_1d(values).astype(np.float64).reshape(num_envs)
 
 
 def dagger(agent: RecurrentActorCritic, collector: Collector, teacher, args: Args, bar, stop_requested) -> dict:

@@ -96,8 +96,9 @@ def train_seed(args: Args, seed: int):
     options = dataclasses.replace(
         args.train, seed=seed, total_steps=args.total_steps, run_dir=args.out_dir, run_name=f"seed{seed}"
     )
-    if os.path.exists(history) and read_json(history)["complete"]:
-        saved, wanted = read_json(history)["config"], json.loads(json.dumps(dataclasses.asdict(options)))
+    finished = read_json(history) if os.path.exists(history) else {"complete": False}
+    if finished["complete"]:
+        saved, wanted = finished["config"], json.loads(json.dumps(dataclasses.asdict(options)))
         differ = sorted(k for k in wanted if saved.get(k) != wanted[k])
         if differ:
             raise ValueError(

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from mani_active_vision.boxes import mask_to_box
+from mani_active_vision.boxes import mask_stats, mask_to_box
 
 BOX_SOURCES = ("ground_truth", "fcn", "projection")
 
@@ -139,19 +139,6 @@ class BoxState(gym.ObservationWrapper):
         self._held = torch.where(seen[:, None], box, self._held)
         use = ~seen & (self._unseen_for <= self.hold_steps)
         return torch.where(use[:, None], self._held, box)
-
-
-def mask_stats(mask: torch.Tensor) -> torch.Tensor:
-    """(N, 3): each mask's share of the image and its centroid's offset from the image centre (dx, dy, as
-    fractions of the width, as the task's `center_offset` is); zeros for an empty mask."""
-    n, h, w = mask.shape
-    area = mask.sum((1, 2)).float()
-    safe = area.clamp(min=1)
-    cy = (mask.sum(2).float() * (torch.arange(h, device=mask.device) + 0.5)).sum(1) / safe
-    cx = (mask.sum(1).float() * (torch.arange(w, device=mask.device) + 0.5)).sum(1) / safe
-    seen = area > 0
-    offset = torch.stack([(cx - w / 2) / w, (cy - h / 2) / w], -1) * seen[:, None]
-    return torch.cat([(area / (h * w))[:, None], offset], -1)
 
 
 def check_thresholds(thresholds) -> None:

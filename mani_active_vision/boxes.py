@@ -44,6 +44,25 @@ def largest_component(mask: torch.Tensor, min_pixels: int = 1) -> torch.Tensor:
     return torch.from_numpy(kept).to(mask.device)
 
 
+def centroid(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Each mask's pixel count and its centroid (x, y) in pixels (pixel centres at +0.5; 0 for an empty mask)."""
+    n, h, w = mask.shape
+    area = mask.sum((1, 2))
+    ys = torch.arange(h, device=mask.device, dtype=torch.float32) + 0.5
+    xs = torch.arange(w, device=mask.device, dtype=torch.float32) + 0.5
+    safe_area = area.clamp(min=1).float()
+    return area, (mask.sum(1).float() * xs).sum(1) / safe_area, (mask.sum(2).float() * ys).sum(1) / safe_area
+
+
+def mask_stats(mask: torch.Tensor) -> torch.Tensor:
+    """(N, 3): each mask's share of the image and its centroid's offset from the image centre (dx, dy, as
+    fractions of the width, as `target_stats`' center_offset is); zeros for an empty mask."""
+    n, h, w = mask.shape
+    area, cx, cy = centroid(mask)
+    offset = torch.stack([(cx - w / 2) / w, (cy - h / 2) / w], -1) * (area > 0)[:, None]
+    return torch.cat([(area.float() / (h * w))[:, None], offset], -1)
+
+
 def target_stats(mask: torch.Tensor) -> dict[str, torch.Tensor]:
     """Per-image facts about a boolean target mask (N, H, W).
 
@@ -52,14 +71,9 @@ def target_stats(mask: torch.Tensor) -> dict[str, torch.Tensor]:
     centroid from the image centre, as a fraction of the image width (inf when not visible).
     """
     n, h, w = mask.shape
-    area = mask.sum((1, 2))
+    area, cx, cy = centroid(mask)
     visible = area > 0
     border = mask[:, 0, :].any(1) | mask[:, -1, :].any(1) | mask[:, :, 0].any(1) | mask[:, :, -1].any(1)
-    ys = torch.arange(h, device=mask.device, dtype=torch.float32) + 0.5
-    xs = torch.arange(w, device=mask.device, dtype=torch.float32) + 0.5
-    safe_area = area.clamp(min=1).float()
-    cy = (mask.sum(2).float() * ys).sum(1) / safe_area
-    cx = (mask.sum(1).float() * xs).sum(1) / safe_area
     offset = torch.sqrt((cx - w / 2) ** 2 + (cy - h / 2) ** 2) / w
     return dict(
         target_fraction=area.float() / (h * w),

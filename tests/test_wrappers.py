@@ -11,7 +11,8 @@ from mani_skill.utils.wrappers import RecordEpisode
 from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
 import mani_active_vision as mav
-from mani_active_vision.box_state import BoxState, mask_stats
+from mani_active_vision.box_state import BoxState
+from mani_active_vision.boxes import mask_stats
 from mani_active_vision.envs import ENV_ID, EnvConfig
 
 
