@@ -68,6 +68,8 @@ from mani_active_vision.agents.policies import (
     ExplorePolicy,
     ServoPolicy,
     box_array,
+    in_success_with_margin,
+    margin_limits,
     num_actions,
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
@@ -140,6 +142,11 @@ class Args:
     stay_penalty: float = 0.0
     """subtracted from the reward of a `stay` (env.stay_action) out of success: standing still pays only in
     focus, so that a learner does not settle where it is (not in the paper)"""
+    hold_margin: float = 0.0
+    """time in success pays (hold_reward) only where success holds with this margin: the target's share at least
+    (1 + m) times the success share and its centre offset at most (1 - m) times the tolerance; a stay outside that
+    costs stay_penalty, and the servo's demonstrations stay only there. A learner that tells success's edge only
+    roughly then stays inside it rather than just outside (docs/control.md §7; not in the paper; 0: off)"""
     step_cost: float = 0.0
     """subtracted from the reward of every step: cycling costs, reaching success sooner pays (not in the paper)"""
     shaping: str = "none"
@@ -297,12 +304,13 @@ def potential(info, success_fraction: float, shaping: str) -> float:
 
 class LearnerReward:
     """What the learner learns from at each step (docs/design.md §9): the env's reward, or with `shaping`
-    the potential difference γΦ(s') - Φ(s) instead; plus the success bonus, less the refusal penalty and
+    the potential difference γΦ(s') - Φ(s) instead; plus the success bonus, then the hold reward in success
+    (with `hold_limits`, only well inside it: `policies.margin_limits`), less the refusal and stay penalties and
     the step cost. Call `reset(info)` at an episode's start and the object at every step (also the
     script's steps, so that Φ(s) is always the previous step's)."""
 
-    def __init__(self, args: Args, success_fraction: float):
-        self.args, self.success_fraction = args, success_fraction
+    def __init__(self, args: Args, success_fraction: float, hold_limits: tuple[float, float] = (0.0, math.inf)):
+        self.args, self.success_fraction, self.hold_limits = args, success_fraction, hold_limits
         self.previous = 0.0
 
     def _potential(self, info) -> float:
@@ -317,10 +325,13 @@ class LearnerReward:
         reward = args.gamma * current - self.previous if args.shaping != "none" else float(env_reward[0])
         self.previous = current
         success = bool(first_env(info, "success"))
-        if success:  # the bonus once, at the first success; time in success after it (also regained) pays
-            reward += args.hold_reward if self.reached else args.success_bonus
+        held = bool(in_success_with_margin(info, 1, self.hold_limits)[0])  # success, with hold_limits' margin
+        if success and not self.reached:  # the bonus once, at the first success
+            reward += args.success_bonus
             self.reached = True
-        idle = args.refusal_penalty * first_env(info, "refused") + args.stay_penalty * (stayed and not success)
+        elif held:  # time in success after it (also regained) pays
+            reward += args.hold_reward
+        idle = args.refusal_penalty * first_env(info, "refused") + args.stay_penalty * (stayed and not held)
         return reward - idle - args.step_cost
 
 
@@ -438,6 +449,8 @@ def train(args: Args, progress: bool = True) -> dict:
         raise ValueError(
             f"episodes={args.episodes} must be a multiple of num_envs={args.num_envs} (rounds of one each)"
         )
+    # a margin outside [0, 1) is a ValueError here, before anything is built
+    hold_limits = margin_limits(args.env.success_fraction, args.env.success_center_tol, args.hold_margin)
     run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
     os.makedirs(run_dir, exist_ok=True)
     writer = tensorboard_writer(run_dir) if args.track else None  # before anything slow: a missing extra fails now
@@ -459,11 +472,12 @@ def train(args: Args, progress: bool = True) -> dict:
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
-    mixed = DemoOrLearner(ServoPolicy(env, hold=actions > len(DIRECTIONS)), learner)
+    servo = ServoPolicy(env, hold=actions > len(DIRECTIONS), hold_limits=hold_limits)
+    mixed = DemoOrLearner(servo, learner)
     actor = ExplorePolicy(env, then=mixed) if args.explore else mixed
     buffer = ReplayBuffer(args.buffer_size, state_dim)
     windows = [NStepWindow(args.n_step, args.gamma) for _ in range(n)]
-    learner_rewards = [LearnerReward(args, args.env.success_fraction) for _ in range(n)]
+    learner_rewards = [LearnerReward(args, args.env.success_fraction, hold_limits) for _ in range(n)]
     trajectories = [Trajectory() for _ in range(n)]
 
     history, global_step, start = [], 0, time.time()

@@ -62,6 +62,25 @@ def info_flags(info, key: str, num_envs: int) -> np.ndarray:
     return info_values(info, key, num_envs).astype(bool)
 
 
+def margin_limits(success_fraction: float, success_center_tol: float, margin: float) -> tuple[float, float]:
+    """The target's least share and largest centre offset for success with `margin` (0 <= m < 1): ((1 + m) times
+    the success share, (1 - m) times the centring tolerance)."""
+    if not 0 <= margin < 1:
+        raise ValueError(f"margin={margin} must be in [0, 1)")
+    return (1 + margin) * success_fraction, (1 - margin) * success_center_tol
+
+
+def in_success_with_margin(info, num_envs: int, limits: tuple[float, float]) -> np.ndarray:
+    """Per env: the task reports success and the target's share is at least `limits[0]` and its centre offset at
+    most `limits[1]` (`margin_limits`), from the ground truth's `info`: well inside success, where a learner that
+    tells success's edge only roughly can still stay."""
+    inside = info_flags(info, "success", num_envs)
+    if inside.any():
+        inside &= info_values(info, "target_fraction", num_envs) >= limits[0]
+        inside &= info_values(info, "target_center_offset", num_envs) <= limits[1]
+    return inside
+
+
 class RandomPolicy:
     """Uniformly random actions (a lower bound)."""
 
@@ -98,15 +117,23 @@ class ServoPolicy:
     `center_tol`, then step forward (zoom in). The sweep reverses on a refused step.
 
     With `hold` it takes `stay` (the env needs `stay_action`) while the task reports success: privileged
-    (`info["success"]` is the ground truth), a teacher for the DQN's demonstrations that shows holding."""
+    (`info["success"]` is the ground truth), a teacher for the DQN's demonstrations that shows holding. With
+    `hold_limits` (`margin_limits`) it stays only well inside success (`in_success_with_margin`)."""
 
-    def __init__(self, env, center_tol: float = 0.1, first_sweep: str = "left", hold: bool = False):
+    def __init__(
+        self,
+        env,
+        center_tol: float = 0.1,
+        first_sweep: str = "left",
+        hold: bool = False,
+        hold_limits: tuple[float, float] = (0.0, float("inf")),
+    ):
         self.num_envs = env.unwrapped.num_envs
         self.center_tol = center_tol
         self.sweep = Sweep(self.num_envs, DIRECTIONS.index(first_sweep))
         if hold and num_actions(env) == len(DIRECTIONS):
             raise ValueError("ServoPolicy(hold=True) takes `stay`: make the env with stay_action")
-        self.hold = hold
+        self.hold, self.hold_limits = hold, hold_limits
 
     def reset(self, obs, info):
         self.sweep.reset()
@@ -123,7 +150,7 @@ class ServoPolicy:
         unseen = w <= 0
         action[unseen] = sweep[unseen]
         if self.hold:
-            action[info_flags(info, "success", self.num_envs)] = STAY_INDEX
+            action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
 
 

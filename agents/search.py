@@ -65,8 +65,9 @@ from mani_active_vision.agents.policies import (
     STAY_INDEX,
     ServoPolicy,
     box_array,
+    in_success_with_margin,
     info_flags,
-    info_values,
+    margin_limits,
     num_actions,
 )
 from mani_active_vision.agents.q_network import load_q_network
@@ -346,7 +347,7 @@ class ExploreDQNTeacher:
     def __init__(self, env, checkpoint: str, stays: bool = False, stay_limits: tuple[float, float] = (0.0, 1.0)):
         self.q_network, config = load_q_network(checkpoint)
         self.n, self.actions, self.stays = env.unwrapped.num_envs, num_actions(env), stays
-        self.stay_fraction, self.stay_offset = stay_limits
+        self.stay_limits = stay_limits
         self.with_last_action = bool(config.get("with_last_action", False))
         q_actions = self.q_network.num_actions
         expected = 4 + (q_actions if self.with_last_action else 0)
@@ -375,12 +376,7 @@ class ExploreDQNTeacher:
             greedy = self.q_network(torch.as_tensor(state)).argmax(-1).numpy()
         action = np.where(self.handed_over, greedy, self.direction)
         if self.stays:
-            stay = info_flags(info, "success", self.n) & ~starts
-            if stay.any():
-                stay &= (info_values(info, "target_fraction", self.n) >= self.stay_fraction) & (
-                    info_values(info, "target_center_offset", self.n) <= self.stay_offset
-                )
-            action[stay] = STAY_INDEX
+            action[in_success_with_margin(info, self.n, self.stay_limits) & ~starts] = STAY_INDEX
         return action.astype(np.int64)
 
     def executed(self, action: np.ndarray):
@@ -409,8 +405,7 @@ def make_teacher(env, args: Args):
     if args.teacher == "servo":
         teacher = ServoTeacher(env, args.teacher_stays)
     else:
-        margin = args.teacher_stay_margin
-        limits = ((1 + margin) * args.env.success_fraction, (1 - margin) * args.env.success_center_tol)
+        limits = margin_limits(args.env.success_fraction, args.env.success_center_tol, args.teacher_stay_margin)
         teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits)
     return GroundTruthBoxTeacher(teacher) if args.teacher_box == "ground_truth" else teacher
 

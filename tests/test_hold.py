@@ -1,6 +1,9 @@
 """Holding a view: the optional `stay` action through env, policies and the DQN; the view planner's model of a
 step agrees with the env's."""
 
+import types
+
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -8,7 +11,13 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.agents.policies import (
+    STAY_INDEX,
+    ServoPolicy,
+    in_success_with_margin,
+    make_policy,
+    margin_limits,
+)
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import STAY, action_names, direction_deltas
@@ -133,6 +142,42 @@ def test_learner_reward_pays_the_bonus_once_then_time_in_success():
     assert paid == pytest.approx([-0.12, -0.02, -0.02])  # a stay costs only out of success
     with pytest.raises(ValueError, match="hold_reward=0.2 pays for time in success.*--no-end-at-success"):
         dqn.train(dqn.Args(**{**dqn.HOLD, "end_at_success": True}), progress=False)
+
+
+def test_hold_margin_pays_and_lets_stay_only_well_inside_success():
+    limits = margin_limits(0.05, 0.15, 0.2)
+    assert limits == pytest.approx((0.06, 0.12))
+    with pytest.raises(ValueError, match=r"margin=1.0 must be in \[0, 1\)"):
+        margin_limits(0.05, 0.15, 1.0)
+
+    def info(success, fraction, offset):
+        return {
+            "success": torch.tensor([success]),
+            "refused": torch.tensor([False]),
+            "target_fraction": torch.tensor([fraction]),
+            "target_center_offset": torch.tensor([offset]),
+        }
+
+    edge, deep, off_centre = info(True, 0.055, 0.10), info(True, 0.07, 0.10), info(True, 0.07, 0.14)
+    flags = [in_success_with_margin(i, 1, limits)[0] for i in (edge, deep, off_centre, info(False, 0.2, 0.0))]
+    assert flags == [False, True, False, False]
+    args = dqn.Args(success_bonus=1.0, hold_reward=0.2, step_cost=0.02, stay_penalty=0.1, hold_margin=0.2)
+    reward = dqn.LearnerReward(args, 0.05, limits)
+    reward.reset(info(False, 0.0, float("inf")))
+    env_reward = torch.zeros(1)
+    paid = [reward(env_reward, i, stayed=True) for i in (edge, edge, deep, off_centre)]
+    # the first success earns the bonus wherever it is; after it, time and stays pay only well inside success
+    assert paid == pytest.approx([0.88, -0.12, 0.18, -0.12])
+    plain = dqn.LearnerReward(args, 0.05)  # no limits: every step in success pays, as before
+    plain.reset(info(False, 0.0, float("inf")))
+    assert [plain(env_reward, edge, stayed=True) for _ in range(2)] == pytest.approx([0.98, 0.18])
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(7))
+    servo = ServoPolicy(env, hold=True, hold_limits=limits)  # the demonstrations' teacher
+    both = {k: torch.cat([edge[k], deep[k]]) for k in edge}
+    centred = np.array([[0.4, 0.4, 0.2, 0.2]] * 2, np.float32)
+    assert servo.act(centred, both).tolist() == [mav.DIRECTIONS.index("forward"), STAY_INDEX]
+    with pytest.raises(ValueError, match=r"margin=1.5 must be in \[0, 1\)"):
+        dqn.train(dqn.Args(**{**dqn.HOLD, "hold_margin": 1.5}), progress=False)
 
 
 def test_evaluate_takes_reference_steps_measured_before():
