@@ -160,6 +160,10 @@ class Args:
     mirror_augment: bool = False
     """also store each transition mirrored left-right (box flipped, left and right swapped): the task is
     nearly symmetric, so this doubles the experience (not in the paper; box-only state)"""
+    avoid_refused: bool = False
+    """the greedy policy does not repeat at once an action the controller has just refused (its state is
+    unchanged, so a memoryless greedy policy would repeat it to the episode's end); kept in the checkpoint, so
+    that the agent acts so when deployed (not in the paper)"""
     n_step: int = 1
     """n-step returns: bootstrap after n of the learner's steps (not in the paper)"""
     updates_per_step: int = 1
@@ -471,7 +475,13 @@ def train(args: Args, progress: bool = True) -> dict:
     target_network.load_state_dict(q_network.state_dict())
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
-    learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
+    learner = DQNPolicy(
+        env,
+        q_network=q_network,
+        seed=args.seed,
+        with_last_action=args.with_last_action,
+        avoid_refused=args.avoid_refused,
+    )
     servo = ServoPolicy(env, hold=actions > len(DIRECTIONS), hold_limits=hold_limits)
     mixed = DemoOrLearner(servo, learner)
     actor = ExplorePolicy(env, then=mixed) if args.explore else mixed
@@ -614,13 +624,21 @@ DEMO = {"demo_episodes": 10}
 WIDE = {"hidden_units": 128}
 """Added to a preset: 128 hidden units instead of the paper's 20 (docs/control.md §6)."""
 
+HOLD_STAY = {"hold_margin": 0.15, "avoid_refused": True, "env": EnvConfig(stay_action=True, with_mask_stats=True)}
+"""Added to a preset: the seventh action `stay`, the mask's share and centroid offset in the state, time in
+success paid only well inside it, and no refused action repeated at once (docs/control.md §7)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
     "hold": ("shaped, but episodes go on past success and time in success pays", Args(**HOLD)),
     "shaped_demo": ("shaped, the servo acting its first 10 training episodes", Args(**SHAPED, **DEMO)),
     "hold_demo": ("hold, the servo acting its first 10 training episodes", Args(**HOLD, **DEMO)),
-    "hold_demo_wide": ("hold_demo with 128 hidden units (the shipped agent's)", Args(**HOLD, **DEMO, **WIDE)),
+    "hold_demo_wide": ("hold_demo with 128 hidden units", Args(**HOLD, **DEMO, **WIDE)),
+    "hold_stay": (
+        "hold_demo_wide that stays: stay, the mask stats, time in success paid well inside it (the shipped agent's)",
+        Args(**HOLD, **DEMO, **WIDE, **HOLD_STAY),
+    ),
 }
 
 if __name__ == "__main__":

@@ -194,7 +194,10 @@ class DQNPolicy:
     """A Q-network: argmax Q, or ε-greedy with `epsilon`. From an `agents.dqn` checkpoint file, or (while
     training) the live `q_network` itself. With `with_last_action` (read from the checkpoint's config) the
     network's state is the box followed by a one-hot of this policy's own previous action (zeros at the
-    start of an episode): `state(obs)`. The env's action count (6, or 7 with `stay`) must be the network's."""
+    start of an episode): `state(obs)`. The env's action count (6, or 7 with `stay`) must be the network's.
+    With `avoid_refused` (read from the checkpoint's config too) a greedy action the controller has just refused
+    is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
+    repeat it to the episode's end (docs/control.md §7)."""
 
     def __init__(
         self,
@@ -204,12 +207,14 @@ class DQNPolicy:
         seed: int = 0,
         q_network=None,
         with_last_action: bool = False,
+        avoid_refused: bool = False,
     ):
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
         self.num_envs = env.unwrapped.num_envs
         self.q_network, self.config = (q_network, {}) if q_network is not None else load_q_network(checkpoint)
         self.with_last_action = bool(self.config.get("with_last_action", with_last_action))
+        self.avoid_refused = bool(self.config.get("avoid_refused", avoid_refused))
         self.last_action = np.full(self.num_envs, -1)
         self.num_actions = num_actions(env)
         if self.num_actions != self.q_network.num_actions:
@@ -242,6 +247,9 @@ class DQNPolicy:
     def act(self, obs, info) -> np.ndarray:
         with torch.no_grad():
             q = self.q_network(torch.as_tensor(self.state(obs)))
+        if self.avoid_refused:
+            refused = np.flatnonzero(info_flags(info, "refused", self.num_envs) & (self.last_action >= 0))
+            q[refused, self.last_action[refused]] = -torch.inf
         action = q.argmax(-1).numpy().astype(np.int64)
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))

@@ -20,12 +20,12 @@ import os
 from dataclasses import dataclass, field
 
 import torch
-import tyro
 
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.agents.q_network import checkpoint_env_config
 from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
 from mani_active_vision.json_io import save_json
@@ -131,4 +131,4 @@ def main(args: Args):
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(cli_with_preset_env(Args))

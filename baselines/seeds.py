@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-import tyro
 
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate, reference_table
 from mani_active_vision.evaluation.report import spread
 from mani_active_vision.json_io import save_json
@@ -224,4 +224,4 @@ def main(args: Args):
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(cli_with_preset_env(Args))

@@ -18,10 +18,21 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import DOWN, FORWARD, LEFT, POLICIES, RIGHT, UP, ExplorePolicy, make_policy
-from mani_active_vision.agents.q_network import save_q_network
+from mani_active_vision.agents.policies import (
+    DOWN,
+    FORWARD,
+    LEFT,
+    POLICIES,
+    RIGHT,
+    UP,
+    DQNPolicy,
+    ExplorePolicy,
+    make_policy,
+)
+from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
 from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
@@ -270,6 +281,28 @@ def test_batched_training_plays_the_same_episodes_as_one_env(tmp_path):
         dqn.train(dataclasses.replace(args, episodes=3, num_envs=2), progress=False)
 
 
+def test_avoid_refused_does_not_repeat_a_refused_action_at_once(tmp_path):
+    stand_in = types.SimpleNamespace(
+        unwrapped=types.SimpleNamespace(num_envs=1),
+        action_space=gym.spaces.Discrete(6),
+        observation_space=gym.spaces.Box(0.0, 1.0, (1, 4)),
+    )
+    q_network = QNetwork(4, 8, 6)
+    with torch.no_grad():  # Q = 0, 1, ..., 5 whatever the state: the greedy action is 5, then 4
+        q_network.network[2].weight.zero_()
+        q_network.network[2].bias.copy_(torch.arange(6.0))
+    box, refused = np.full((1, 4), 0.3, np.float32), {"refused": torch.tensor([True])}
+    path = str(tmp_path / "q_network.pt")
+    save_q_network(path, q_network, dqn.Args(hidden_units=8, avoid_refused=True))
+    wary = DQNPolicy(stand_in, checkpoint=path)  # the option comes with the checkpoint
+    plain = DQNPolicy(stand_in, q_network=q_network)
+    for policy in (wary, plain):
+        policy.reset(box, {})
+    assert wary.act(box, {})[0] == 5 and wary.act(box, refused)[0] == 4  # 5 was refused: the next best
+    assert wary.act(box, refused)[0] == 5  # only the action just refused is left out
+    assert plain.act(box, {})[0] == 5 and plain.act(box, refused)[0] == 5  # without the option it repeats
+
+
 def test_the_shipped_dqn_loads_and_acts_as_deployed():
     path = os.path.join(ROOT, "agents", "weights", "dqn.pt")
     config = torch.load(path, weights_only=True)["config"]  # weights and plain data only
@@ -299,6 +332,13 @@ def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(monkeypat
     assert seeds.label(args) == "hold_demo" and seeds.label(dataclasses.replace(args, name="x")) == "x"
     with pytest.raises(ValueError, match="'seed' is not one of"):  # the script's own, not the preset's
         seeds.train_options(dataclasses.replace(args, set=["seed=3"]))
+    # the preset's env is the default of --env.*: hold_stay acts with stay and the mask stats; a flag overrides
+    stays = cli_with_preset_env(seeds.Args, ["--preset", "hold_stay"]).env
+    assert stays == dqn.PRESETS["hold_stay"][1].env and stays.stay_action and stays.with_mask_stats
+    assert not cli_with_preset_env(seeds.Args, ["--preset", "hold_stay", "--env.no-stay-action"]).env.stay_action
+    assert cli_with_preset_env(seeds.Args, ["--preset", "hold_demo_wide"]).env == EnvConfig()
+    with pytest.raises(ValueError, match="preset='x' is not one of: paper"):
+        cli_with_preset_env(seeds.Args, ["--preset", "x"])
 
 
 def test_mirrored_transitions_and_shaping_potentials():

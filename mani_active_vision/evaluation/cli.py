@@ -1,5 +1,6 @@
-"""Command lines of scripts that evaluate a DQN checkpoint: its env config is the default of `--env.*`, so
-that a flag given overrides that one option and everything else is as the agent was trained."""
+"""Command lines whose `--env.*` defaults come from elsewhere, so that a flag given overrides that one option:
+scripts that evaluate a DQN checkpoint (its env config, everything else as the agent was trained), and scripts
+that train a DQN preset (the preset's env: `hold_stay` acts with `stay` and the mask stats)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import sys
 
 import tyro
 
+from mani_active_vision.agents import dqn
 from mani_active_vision.agents.q_network import checkpoint_env_config
 
 
@@ -23,3 +25,16 @@ def cli_with_checkpoint_env(args_type, argv: list[str] | None = None):
     if checkpoint:
         default = dataclasses.replace(default, checkpoint=checkpoint, env=checkpoint_env_config(checkpoint))
     return tyro.cli(args_type, default=default, args=argv)
+
+
+def cli_with_preset_env(args_type, argv: list[str] | None = None):
+    """`tyro.cli(args_type)` with the defaults of the nested `env` field those of the DQN preset that `--preset`
+    names (or `args_type`'s default preset); `--help` then shows them. `args_type` has fields `preset` and `env`."""
+    argv = sys.argv[1:] if argv is None else argv
+    default = args_type()
+    peek = argparse.ArgumentParser(add_help=False)
+    peek.add_argument("--preset", default=default.preset)
+    preset = peek.parse_known_args(argv)[0].preset
+    if preset not in dqn.PRESETS:
+        raise ValueError(f"preset={preset!r} is not one of: {', '.join(dqn.PRESETS)}")
+    return tyro.cli(args_type, default=dataclasses.replace(default, env=dqn.PRESETS[preset][1].env), args=argv)
