@@ -161,9 +161,10 @@ class Args:
     """also store each transition mirrored left-right (box flipped, left and right swapped): the task is
     nearly symmetric, so this doubles the experience (not in the paper; box-only state)"""
     avoid_refused: bool = False
-    """the greedy policy does not repeat at once an action the controller has just refused (its state is
-    unchanged, so a memoryless greedy policy would repeat it to the episode's end); kept in the checkpoint, so
-    that the agent acts so when deployed (not in the paper)"""
+    """the trained agent does not repeat at once an action the controller has just refused (its state is
+    unchanged, so a memoryless greedy policy would repeat it to the episode's end): kept in the checkpoint for
+    evaluation and deployment; the ε-greedy learner in training acts without it (with it, seeds did worse;
+    docs/control.md §7; not in the paper)"""
     n_step: int = 1
     """n-step returns: bootstrap after n of the learner's steps (not in the paper)"""
     updates_per_step: int = 1
@@ -475,13 +476,8 @@ def train(args: Args, progress: bool = True) -> dict:
     target_network.load_state_dict(q_network.state_dict())
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
-    learner = DQNPolicy(
-        env,
-        q_network=q_network,
-        seed=args.seed,
-        with_last_action=args.with_last_action,
-        avoid_refused=args.avoid_refused,
-    )
+    # the ε-greedy learner acts without avoid_refused: it is for the trained agent (measured: docs/control.md §7)
+    learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
     servo = ServoPolicy(env, hold=actions > len(DIRECTIONS), hold_limits=hold_limits)
     mixed = DemoOrLearner(servo, learner)
     actor = ExplorePolicy(env, then=mixed) if args.explore else mixed
