@@ -20,6 +20,7 @@ zeros when the target is not seen. Names: see POLICIES.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import gymnasium as gym
@@ -75,8 +76,9 @@ def in_success_with_margin(info, num_envs: int, limits: tuple[float, float]) -> 
     most `limits[1]` (`margin_limits`), from the ground truth's `info`: well inside success, where a learner that
     tells success's edge only roughly can still stay."""
     inside = info_flags(info, "success", num_envs)
-    if inside.any():
+    if inside.any() and limits[0] > 0:  # a limit that restricts nothing is not read
         inside &= info_values(info, "target_fraction", num_envs) >= limits[0]
+    if inside.any() and limits[1] < math.inf:
         inside &= info_values(info, "target_center_offset", num_envs) <= limits[1]
     return inside
 
@@ -126,7 +128,7 @@ class ServoPolicy:
         center_tol: float = 0.1,
         first_sweep: str = "left",
         hold: bool = False,
-        hold_limits: tuple[float, float] = (0.0, float("inf")),
+        hold_limits: tuple[float, float] = (0.0, math.inf),
     ):
         self.num_envs = env.unwrapped.num_envs
         self.center_tol = center_tol

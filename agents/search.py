@@ -17,8 +17,8 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   offset (where success begins: the shipped agent's), and a one-hot of its own previous action;
 - a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (whole
   sequences replayed with the same resets) and in evaluation;
-- the teacher (`teacher`): the shipped agent, the scripted exploration handing over to the DQN of
-  `agents/weights/dqn.pt`, or the scripted servo; it runs beside the learner and labels the learner's own
+- the teacher (`teacher`): the scripted exploration handing over to the six-direction DQN of
+  `agents/weights/dqn_hold_demo_wide.pt` (the agent shipped before `hold_stay`), or the scripted servo; it runs beside the learner and labels the learner's own
   states (its sweep turns on the learner's refusals, its hand-over latches on the learner's first sighting);
 - `algo=dagger` (Ross et al., 2011): the greedy learner acts on `num_envs` `make_vec_env` worker processes,
   the teacher acting instead on a share of the steps that falls from 1 to 0 over `dagger_beta_steps`; every
@@ -145,10 +145,10 @@ class Args:
     """ppo: behaviour cloning, then PPO with the teacher's labels (above); dagger: DAgger alone (the learner
     acts, the teacher labels its states, every labelled episode is kept and the policy is fit to them; the
     demo_* and PPO options are not used)"""
-    teacher: str = "agents/weights/dqn.pt"
+    teacher: str = "agents/weights/dqn_hold_demo_wide.pt"
     """whose actions label the learner's states (and play the cloned episodes): servo (the scripted servo), or
-    a DQN checkpoint, e.g. agents/weights/dqn.pt (the scripted exploration handing over to that DQN, as the
-    shipped agent is deployed)"""
+    a six-direction DQN checkpoint on the box alone, e.g. agents/weights/dqn_hold_demo_wide.pt (the scripted
+    exploration handing over to that DQN, as it is deployed)"""
     teacher_stays: bool = False
     """the teacher takes `stay` (the env needs stay_action) while the task reports success: privileged (the
     ground truth's success), a teacher that shows holding"""

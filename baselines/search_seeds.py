@@ -57,8 +57,8 @@ class Args:
     """objects of the evaluation episodes"""
     boxes: list[str] = field(default_factory=lambda: list(BOXES))
     """the boxes the agents are evaluated on: fcn (as deployed) and ground_truth (the reference column)"""
-    dqn_checkpoint: str = "agents/weights/dqn.pt"
-    """the DQN of the baselines (explore -> dqn, and dqn without exploration)"""
+    dqn_checkpoint: str = "agents/weights/dqn_hold_demo_wide.pt"
+    """the DQN of the baselines (explore -> dqn, and dqn without exploration): the teacher's"""
     out_dir: str = "runs/search_seeds"
     """where runs, evaluations and the table go"""
     figures_dir: str = "docs/figures"
@@ -153,9 +153,9 @@ def baselines(args: Args, box: str) -> dict[str, dict]:
     suffix = f"{box}_{args.eval_episodes}.json"
     out = {}
     for label, name, kwargs in (
-        ("explore → dqn (shipped dqn.pt)", "explore", dict(then="dqn", checkpoint=args.dqn_checkpoint)),
+        ("explore → dqn (the teacher)", "explore", dict(then="dqn", checkpoint=args.dqn_checkpoint)),
         ("servo (scripted)", "servo", {}),
-        ("dqn without exploration (dqn.pt)", "dqn", dict(checkpoint=args.dqn_checkpoint)),
+        ("dqn without exploration (the teacher's)", "dqn", dict(checkpoint=args.dqn_checkpoint)),
     ):
         path = os.path.join(args.out_dir, f"baseline_{name}_{suffix}")
         config = dqn_env if name != "servo" else eval_config(EnvConfig(), args, box)

@@ -312,6 +312,9 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
     assert deployed == trained.replace(
         box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS
     )
+    # the hold_stay preset: it stays well inside success, sees the mask stats, does not repeat a refused action
+    assert deployed.stay_action and deployed.with_mask_stats and config["hold_margin"] == 0.15
+    assert config["avoid_refused"] and config["hidden_units"] == 128
     env = mav.make_env(deployed.replace(max_episode_steps=25))
     try:
         policy = make_policy("explore", env, then="dqn", checkpoint=path)

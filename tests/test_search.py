@@ -124,7 +124,9 @@ def test_a_short_training_run_on_workers_saves_an_agent_that_acts(tmp_path):
     assert 0 <= episode["final_target_fraction"] <= 1 and policy.last_action[0] in range(6)
 
 
-DQN_WEIGHTS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", "weights", "dqn.pt")
+DQN_WEIGHTS = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", "weights", "dqn_hold_demo_wide.pt"
+)
 
 
 def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
