@@ -21,11 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.cli import cli_with_checkpoint_env
 from mani_active_vision.evaluation.protocol import eval_seeds
 from mani_active_vision.evaluation.rollout import run_episode
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
@@ -40,7 +40,8 @@ class Args:
     seed: int = 1_000_000
     """first episode's seed (held out)"""
     env: EnvConfig = field(default_factory=lambda: EnvConfig(object_set="unseen").on_fcn_box())
-    """the env on the FCN's box, as deployed; the reference is the same with the ground-truth box"""
+    """the env on the FCN's box, as deployed (with --checkpoint: the checkpoint's env, a shipped agent's being
+    the deployed one); the reference is the same with the ground-truth box"""
     checkpoint: str = ""
     """a DQN checkpoint: the policy is the exploration, then this DQN (default: the scripted servo)"""
 
@@ -124,4 +125,4 @@ def main(args: Args):
 
 if __name__ == "__main__":
     torch.set_num_threads(1)
-    main(tyro.cli(Args))
+    main(cli_with_checkpoint_env(Args))

@@ -344,6 +344,26 @@ def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(monkeypat
         cli_with_preset_env(seeds.Args, ["--preset", "x"])
 
 
+def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(monkeypatch, tmp_path):
+    spec = importlib.util.spec_from_file_location("focus_curve", os.path.join(ROOT, "baselines", "focus_curve.py"))
+    focus_curve = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "focus_curve", focus_curve)
+    spec.loader.exec_module(focus_curve)
+    shipped = os.path.join(ROOT, "agents", "weights", "dqn.pt")
+    args = focus_curve.Args(agents=[], episodes=2, box_source="ground_truth")
+    share = focus_curve.in_success(shipped, args)
+    assert len(share) == 101 and set(share) <= {0.0, 0.5, 1.0}  # the reset and 100 steps, over 2 episodes
+    assert share[0] == 0.0  # no episode starts in success (the sky start)
+    out = str(tmp_path / "focus.png")
+    monkeypatch.setattr(focus_curve, "in_success", lambda checkpoint, args: share)
+    (tmp_path / "agent" / "seed0").mkdir(parents=True)
+    (tmp_path / "agent" / "seed0" / "q_network.pt").touch()
+    curves = focus_curve.main(focus_curve.Args(agents=[f"x={tmp_path / 'agent'}"], out=out))
+    assert curves == {"x": [share]} and os.path.getsize(out) > 0
+    with pytest.raises(ValueError, match="each must be label=folder"):
+        focus_curve.main(focus_curve.Args(agents=["x"], out=out))
+
+
 def test_mirrored_transitions_and_shaping_potentials():
     six = dqn.MIRRORED_ACTION[:6]  # the table of the six directions (stay, when enabled, comes last)
     assert [mav.DIRECTIONS[a] for a in six] == ["right", "left", "forward", "backward", "up", "down"]

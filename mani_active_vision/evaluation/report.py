@@ -51,9 +51,11 @@ def moving_average(values, window: int) -> np.ndarray:
     return np.convolve(values, kernel, "valid") / len(kernel)
 
 
-def plot_curves(curves: dict[str, list], path: str, ylabel: str, window: int = 10, title: str = ""):
-    """Learning curves: label -> per-seed lists of per-episode values; mean ± std over seeds of the
-    moving average (window episodes) of each."""
+def plot_curves(
+    curves: dict[str, list], path: str, ylabel: str, window: int = 10, title: str = "", xlabel: str = "training episode"
+):
+    """Learning curves: label -> per-seed lists of per-episode values (or of other steps: `xlabel`); mean ± std
+    over seeds of the moving average (window values; 1: none) of each."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for label, runs in curves.items():
         smooth = np.stack([moving_average(r, window) for r in runs])
@@ -61,8 +63,8 @@ def plot_curves(curves: dict[str, list], path: str, ylabel: str, window: int = 1
         x = np.arange(len(mean)) + len(runs[0]) - len(mean) + 1
         ax.plot(x, mean, label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
         ax.fill_between(x, mean - std, mean + std, alpha=0.25)
-    ax.set_xlabel("training episode")
-    ax.set_ylabel(f"{ylabel} ({window}-episode moving average)")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(f"{ylabel} ({window}-{xlabel.split()[-1]} moving average)" if window > 1 else ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend()
