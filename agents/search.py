@@ -18,8 +18,9 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
 - a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (whole
   sequences replayed with the same resets) and in evaluation;
 - the teacher (`teacher`): the scripted exploration handing over to the six-direction DQN of
-  `agents/weights/dqn_hold_demo_wide.pt` (the agent shipped before `hold_stay`), or the scripted servo; it runs beside the learner and labels the learner's own
-  states (its sweep turns on the learner's refusals, its hand-over latches on the learner's first sighting);
+  `agents/weights/dqn_hold_demo_wide.pt` (the agent shipped before `hold_stay`), or the scripted servo; it
+  runs beside the learner and labels the learner's own states (its sweep turns on the learner's refusals,
+  its hand-over latches on the learner's first sighting);
 - `algo=dagger` (Ross et al., 2011): the greedy learner acts on `num_envs` `make_vec_env` worker processes,
   the teacher acting instead on a share of the steps that falls from 1 to 0 over `dagger_beta_steps`; every
   labelled episode is kept and the policy is fit to all of them (cross-entropy). The memory learns what the
