@@ -41,12 +41,12 @@ class Args:
 
 
 def in_success(checkpoint: str, args: Args) -> list[float]:
-    """The share of the episodes in success at each step (the reset's included) of one seed's agent."""
+    """The share of the episodes in success after each step (1, 2, ...) of one seed's agent."""
     config = checkpoint_env_config(checkpoint).replace(object_set="unseen")
     env = make_env(config.on_fcn_box() if args.box_source == "fcn" else config.replace(box_source="ground_truth"))
     try:
         policy = make_policy("explore", env, then="dqn", checkpoint=checkpoint)
-        flags = [run_episode(env, policy, seed).success for seed in eval_seeds(args.episodes, args.seed)]
+        flags = [run_episode(env, policy, seed).success[1:] for seed in eval_seeds(args.episodes, args.seed)]
     finally:
         env.close()
     return np.mean(np.array(flags, float), axis=0).tolist()  # episodes all run to the step limit
@@ -74,7 +74,7 @@ def main(args: Args) -> dict:
                 curves[label].append(in_success(checkpoint, args))
                 bar.update()
     box = "FCN's box as deployed" if args.box_source == "fcn" else "ground-truth box"
-    title = f"in focus: {args.episodes} held-out episodes per seed, unseen objects, {box}"
+    title = f"in focus on the {box}\n{args.episodes} held-out episodes per seed, unseen objects"
     plot_curves(curves, args.out, "share of episodes in success", window=1, title=title, xlabel="step")
     save_json({"args": vars(args), "curves": curves}, os.path.splitext(args.out)[0] + ".json")
     print(f"plot: {args.out}")

@@ -352,8 +352,8 @@ def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(monkeypatc
     shipped = os.path.join(ROOT, "agents", "weights", "dqn.pt")
     args = focus_curve.Args(agents=[], episodes=2, box_source="ground_truth")
     share = focus_curve.in_success(shipped, args)
-    assert len(share) == 101 and set(share) <= {0.0, 0.5, 1.0}  # the reset and 100 steps, over 2 episodes
-    assert share[0] == 0.0  # no episode starts in success (the sky start)
+    assert len(share) == 100 and set(share) <= {0.0, 0.5, 1.0}  # after each of 100 steps, over 2 episodes
+    assert share[0] == 0.0  # the first step is the exploration's, from the sky start: no success yet
     out = str(tmp_path / "focus.png")
     monkeypatch.setattr(focus_curve, "in_success", lambda checkpoint, args: share)
     (tmp_path / "agent" / "seed0").mkdir(parents=True)
