@@ -1,7 +1,8 @@
 """Which actions a DQN checkpoint takes once the exploration has handed over: counts by name over a few
 evaluation episodes (does an agent with `stay` hold by staying, or by oscillating?), and which episodes end
 in a cycle (the same few actions over and over: a greedy agent on a memoryless state that returns to a state
-repeats itself to the end).
+repeats itself to the end), and where each episode ended (the target's share of the image and its centre's
+offset: how far from success a `stay` or a cycle sits).
 
     python baselines/action_counts.py --checkpoint runs/seeds/stay/hold/seed0/q_network.pt --episodes 5
     python baselines/action_counts.py --checkpoint agents/weights/dqn.pt --episodes 50
@@ -20,6 +21,7 @@ from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.evaluation.cli import cli_with_checkpoint_env
 from mani_active_vision.evaluation.protocol import EVAL_SEED, eval_seeds
 from mani_active_vision.evaluation.rollout import run_episode
+from mani_active_vision.metrics import first_env
 
 
 @dataclass
@@ -62,13 +64,18 @@ def main(args: Args) -> dict:
             return action
 
         learner.act = counted
+        last_info = {}
         for seed in eval_seeds(args.episodes, args.seed):
             episode_actions.clear()
-            trajectory = run_episode(env, policy, seed)
+            trajectory = run_episode(env, policy, seed, on_step=lambda obs, info: last_info.update(info=info))
             period = ending_cycle(episode_actions)
             cycles[any(trajectory.success), period is not None] += 1
             cycle = f", ends in a cycle of {'-'.join(names[a] for a in episode_actions[-period:])}" if period else ""
-            print(f"episode {seed}: success {any(trajectory.success)}, at the end {trajectory.success[-1]}{cycle}")
+            share, offset = (first_env(last_info["info"], k) for k in ("target_fraction", "target_center_offset"))
+            print(
+                f"episode {seed}: success {any(trajectory.success)}, at the end {trajectory.success[-1]} (share "
+                f"{share:.3f}, centre offset {offset:.3f}){cycle}"
+            )
     finally:
         env.close()
     print("the DQN's actions:", dict(counts.most_common()))
