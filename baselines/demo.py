@@ -25,7 +25,7 @@ import torch
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.agents.q_network import checkpoint_env_config
-from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.envs import DQN_FCN_THRESHOLDS, EnvConfig, make_env
 from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
@@ -64,9 +64,12 @@ class Args:
 
 def eval_env(args: Args, box_source: str) -> EnvConfig:
     """The evaluation env on `box_source`: the training env with the evaluation objects (and, on the FCN's box,
-    as the FCN is deployed: the camera's side and the box held through its misses)."""
+    as the shipped DQN is deployed: the camera's side, the box held through the FCN's misses, its verifier bars)."""
     config = args.env.replace(box_source=box_source, object_set=args.eval_object_set)
-    return config.on_fcn_box() if box_source == "fcn" else config
+    if box_source != "fcn":
+        return config
+    acquire, track = DQN_FCN_THRESHOLDS
+    return config.on_fcn_box().replace(fcn_acquire_threshold=acquire, fcn_track_threshold=track)
 
 
 def main(args: Args):

@@ -32,6 +32,11 @@ class Args:
     box_hold_steps: int = FCN_BOX_HOLD_STEPS
     """how many steps the deployed box keeps the last box seen while the FCN sees nothing
     (default: `EnvConfig.on_fcn_box`'s, envs.FCN_BOX_HOLD_STEPS)"""
+    fcn_acquire_threshold: float = 0.0
+    """the verifier probability a new region of the deployed box needs (0: the FCN checkpoint's own bar;
+    scripts/make_dqn.sh ships the DQN with envs.DQN_FCN_THRESHOLDS)"""
+    fcn_track_threshold: float = 0.0
+    """the verifier probability a region near the last box needs to stay the box (0: the FCN checkpoint's)"""
 
 
 def ship(args: Args) -> EnvConfig:
@@ -43,7 +48,12 @@ def ship(args: Args) -> EnvConfig:
     env = (
         EnvConfig.from_dict(trained)
         .on_fcn_box()
-        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
+        .replace(
+            object_set=args.object_set,
+            box_hold_steps=args.box_hold_steps,
+            fcn_acquire_threshold=args.fcn_acquire_threshold,
+            fcn_track_threshold=args.fcn_track_threshold,
+        )
     )
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

@@ -33,6 +33,11 @@ FCN_BOX_HOLD_STEPS = 20
 """`EnvConfig.box_hold_steps` where the FCN's box is deployed: an agent trained on the ground-truth box keeps
 acting on the last box the FCN saw while the FCN misses the target (docs/control.md §6)."""
 
+DQN_FCN_THRESHOLDS = (0.97, 0.9)
+"""`EnvConfig.fcn_acquire_threshold`, `fcn_track_threshold` where the shipped DQN is deployed: a new region
+needs the verifier's 0.97 to become the box, one near the last box keeps it at the FCN's own 0.9, so fewer
+look-alikes are taken for the target (docs/control.md §7; `baselines/ship_dqn.py`, the demo)."""
+
 
 @dataclass(frozen=True)
 class EnvConfig:

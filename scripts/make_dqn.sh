@@ -2,9 +2,10 @@
 # Reproduce the shipped DQN (agents/weights/dqn.pt): train the chosen preset and seed (default hold_stay, seed 0:
 # the best of five on the FCN's box; 100 training episodes, ground-truth box, train objects; one process,
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
-# baselines/ship_dqn.py), then evaluate it as deployed on 50 held-out episodes (docs/control.md §7).
+# baselines/ship_dqn.py, with the verifier bars of envs.DQN_FCN_THRESHOLDS: 0.97 to acquire a region, 0.9 to
+# keep it), then evaluate it as deployed on 50 held-out episodes (docs/control.md §7).
 # The six-direction agent shipped before it, the memory agent's teacher (docs/search.md), is remade by
-#   PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt bash scripts/make_dqn.sh
+#   PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt SHIP_ARGS= bash scripts/make_dqn.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -14,6 +15,8 @@ SEED=${SEED:-0}
 OUT=${OUT:-agents/weights/dqn.pt}
 RUN=runs/make_dqn/${PRESET}_seed${SEED}
 $PY -m mani_active_vision.agents.dqn "$PRESET" --seed "$SEED" --run-dir runs/make_dqn --run-name "${PRESET}_seed${SEED}" "$@"
-$PY baselines/ship_dqn.py --checkpoint "$RUN/q_network.pt" --out "$OUT"
+SHIP_ARGS=${SHIP_ARGS-"--fcn-acquire-threshold 0.97 --fcn-track-threshold 0.9"}
+# shellcheck disable=SC2086
+$PY baselines/ship_dqn.py --checkpoint "$RUN/q_network.pt" --out "$OUT" $SHIP_ARGS
 $PY baselines/evaluate.py --policy explore --then dqn --checkpoint "$OUT" --episodes 50 \
     --json "outputs/$(basename "$OUT" .pt)_shipped.json"

@@ -2,7 +2,7 @@
 # Reproduce the shipped memory agent (agents/weights/search.pt) and its measurements (docs/search.md): train
 # the memory agent (agents/search.py: DAgger from the explore -> six-direction DQN agent shipped before hold_stay,
 # agents/weights/dqn_hold_demo_wide.pt, remade by `PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt
-# bash scripts/make_dqn.sh`; the teacher stays well inside success; with `stay` and the mask stats in its
+# SHIP_ARGS= bash scripts/make_dqn.sh`; the teacher stays well inside success; with `stay` and the mask stats in its
 # input; ground-truth box, train objects, 2 worker processes, 20,000 env steps, ~5 min) for each seed, evaluate every seed and the baselines on 50 held-out episodes (unseen objects, FCN
 # box as deployed and ground-truth box), draw the learning curves and the camera's azimuth, then ship seed 0
 # (chosen before training, not the best) as deployed (FCN box, unseen objects: baselines/ship_dqn.py) and

@@ -31,7 +31,7 @@ from mani_active_vision.agents.policies import (
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import DQN_FCN_THRESHOLDS, FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
@@ -309,8 +309,14 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.image_size) == ("fcn", "unseen", FCN_IMAGE_SIZE)
     assert trained.box_source == "ground_truth"  # evaluate.py starts from the deployed env
+    acquire, track = DQN_FCN_THRESHOLDS  # the verifier's bars it is deployed with
     assert deployed == trained.replace(
-        box_source="fcn", object_set="unseen", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS
+        box_source="fcn",
+        object_set="unseen",
+        image_size=FCN_IMAGE_SIZE,
+        box_hold_steps=FCN_BOX_HOLD_STEPS,
+        fcn_acquire_threshold=acquire,
+        fcn_track_threshold=track,
     )
     # the hold_stay preset: it stays well inside success, sees the mask stats, does not repeat a refused action
     assert deployed.stay_action and deployed.with_mask_stats and config["hold_margin"] == 0.15
