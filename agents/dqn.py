@@ -44,10 +44,13 @@ Evaluation is always on the task as it is (no episode end at success, the env's 
 episodes and seeds, the same updates per env step; 1, the default, is the env in this process).
 `--track` also writes the training scalars to TensorBoard in the run's folder (`tensorboard --logdir runs/dqn`;
 TensorBoard is the optional extra `track`); the learning curve is a PNG either way.
+`select_every` validates the greedy agent now and then and saves the network that succeeded most, not the last
+(off by default; measured in docs/control.md §7).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import os
@@ -75,6 +78,7 @@ from mani_active_vision.agents.policies import (
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.directions import DIRECTIONS, action_names
 from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
 from mani_active_vision.vec_env import make_vec_env
@@ -82,6 +86,10 @@ from mani_active_vision.vec_env import make_vec_env
 TRAIN_SEED_STRIDE = 10_000
 """Training episode k of run seed s resets the env with seed s * TRAIN_SEED_STRIDE + k (evaluation uses
 seeds from 1,000,000 up: never a training scene)."""
+
+VALIDATION_OFFSET = 5_000
+"""Validation episode k of run seed s (`Args.select_every`) resets with seed s * TRAIN_SEED_STRIDE +
+VALIDATION_OFFSET + k: a scene of the run's own training range that its training episodes never reach."""
 
 
 @dataclass
@@ -165,6 +173,15 @@ class Args:
     unchanged, so a memoryless greedy policy would repeat it to the episode's end): kept in the checkpoint for
     evaluation and deployment; the ε-greedy learner in training acts without it (with it, seeds did worse;
     docs/control.md §7; not in the paper)"""
+    select_every: int = 0
+    """0: keep the network as training ends. N > 0: every N training episodes from `select_from` on, run the
+    greedy agent as it acts after training (explore, then the DQN) on `select_episodes` validation scenes, and keep
+    the network that succeeds most (the later on a tie). Validation scenes: the training env and objects, seeds of
+    this run's training range that training never reaches (VALIDATION_OFFSET); no learning (not in the paper)"""
+    select_from: int = 50
+    """the first training episode count at which the network is validated (with select_every)"""
+    select_episodes: int = 10
+    """validation episodes per check (with select_every)"""
     n_step: int = 1
     """n-step returns: bootstrap after n of the learner's steps (not in the paper)"""
     updates_per_step: int = 1
@@ -391,6 +408,45 @@ def drop_boxes(obs, dropped: np.ndarray):
     return array
 
 
+class Selector:
+    """`Args.select_every`: validates the live network now and then, and keeps a copy of the one that succeeded
+    most on the validation scenes (success, then success at the end; the later on a tie)."""
+
+    def __init__(self, args: Args):
+        self.args, self.env = args, None
+        self.best, self.best_score, self.checks = None, None, []
+        first = args.seed * TRAIN_SEED_STRIDE + VALIDATION_OFFSET
+        self.seeds = range(first, first + args.select_episodes)
+
+    def due(self, episodes_done: int) -> bool:
+        every = self.args.select_every
+        return every > 0 and episodes_done >= self.args.select_from and episodes_done % every == 0
+
+    def check(self, q_network: QNetwork, episodes_done: int):
+        if self.env is None:
+            self.env = make_env(self.args.env)  # one env of its own: the training env's episodes are unchanged
+        greedy = DQNPolicy(
+            self.env,
+            q_network=q_network,
+            with_last_action=self.args.with_last_action,
+            avoid_refused=self.args.avoid_refused,
+        )
+        policy = ExplorePolicy(self.env, then=greedy) if self.args.explore else greedy
+        episodes = evaluate(self.env, policy, self.seeds, with_reference=False, progress=False)
+        score = (
+            float(np.mean([e["success"] for e in episodes])),
+            float(np.mean([e["success_final"] for e in episodes])),
+        )
+        self.checks.append({"episodes": episodes_done, "success": score[0], "success_final": score[1]})
+        if self.best_score is None or score >= self.best_score:
+            self.best_score, self.best = score, copy.deepcopy(q_network.state_dict())
+            self.checks[-1]["kept"] = True
+
+    def close(self):
+        if self.env is not None:
+            self.env.close()
+
+
 def update(q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict, args: Args) -> tuple[float, float]:
     """One gradient step on a batch: the TD loss, plus DQfD's margin loss with `demo_margin`; returns both."""
     loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
@@ -454,6 +510,13 @@ def train(args: Args, progress: bool = True) -> dict:
         raise ValueError(
             f"episodes={args.episodes} must be a multiple of num_envs={args.num_envs} (rounds of one each)"
         )
+    if args.select_every < 0 or (args.select_every and args.select_episodes < 1):
+        raise ValueError(
+            f"select_every={args.select_every}, select_episodes={args.select_episodes}: "
+            "select_every is 0 (off) or a positive episode count, with select_episodes >= 1"
+        )
+    if args.episodes > VALIDATION_OFFSET:
+        raise ValueError(f"episodes={args.episodes} would reach the validation scenes: at most {VALIDATION_OFFSET}")
     # a margin outside [0, 1) is a ValueError here, before anything is built
     hold_limits = margin_limits(args.env.success_fraction, args.env.success_center_tol, args.hold_margin)
     run_dir = os.path.join(args.run_dir, args.run_name or default_run_name(args))
@@ -486,6 +549,7 @@ def train(args: Args, progress: bool = True) -> dict:
     learner_rewards = [LearnerReward(args, args.env.success_fraction, hold_limits) for _ in range(n)]
     trajectories = [Trajectory() for _ in range(n)]
 
+    selector = Selector(args)
     history, global_step, start = [], 0, time.time()
     bar = tqdm(total=args.episodes, desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
     try:
@@ -571,12 +635,17 @@ def train(args: Args, progress: bool = True) -> dict:
                             group = "losses" if key.endswith("loss") else "charts"
                             writer.add_scalar(f"{group}/{key}", history[-1][key], global_step)
             bar.update(n)
+            if selector.due(first + n):
+                selector.check(q_network, first + n)
             bar.set_postfix(
                 ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon[-1]:.3f}"
             )
     finally:
         bar.close()
         env.close()
+        selector.close()
+        if selector.best is not None:  # the validated network that succeeded most, not the last one
+            q_network.load_state_dict(selector.best)
         if writer is not None:
             writer.close()
         checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far
@@ -587,6 +656,7 @@ def train(args: Args, progress: bool = True) -> dict:
                 "seconds": time.time() - start,
                 "env_steps": global_step,
                 "complete": len(history) == args.episodes,
+                "selection": selector.checks,
                 "history": history,
             },
             os.path.join(run_dir, "history.json"),

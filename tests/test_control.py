@@ -223,6 +223,34 @@ def test_a_short_training_run_end_to_end(tmp_path):
     assert set(episodes[0]) >= {"success", "spl", "steps_to_see", "return"}
 
 
+def test_select_every_keeps_the_validated_network_that_succeeds_most(tmp_path, monkeypatch):
+    """The saved network is the validated one with the best success (here the first of two checks, by a made-up
+    score over real rollouts), on scenes of the run's range that training never reaches; training is unchanged."""
+    short = EnvConfig(max_episode_steps=15)
+    base = dict(env=short, episodes=4, learning_starts=5, target_update_steps=20)
+    seen, snapshots, scores = [], [], iter([1.0, 0.0])
+
+    def made_up_success(env, policy, seeds, **kwargs):
+        seen.append(list(seeds))
+        snapshots.append({k: v.clone() for k, v in policy.then.q_network.state_dict().items()})
+        return [{**e, "success": next(scores)} for e in evaluate(env, policy, seeds, **kwargs)]
+
+    monkeypatch.setattr(dqn, "evaluate", made_up_success)
+    args = dqn.Args(**base, select_every=2, select_from=2, select_episodes=1, run_dir=str(tmp_path / "sel"))
+    selected = dqn.train(args, progress=False)
+    plain = dqn.train(dqn.Args(**base, run_dir=str(tmp_path / "plain")), progress=False)
+    saved = torch.load(selected["checkpoint"], weights_only=True)["state_dict"]
+    assert all(torch.equal(saved[k], snapshots[0][k]) for k in saved)  # the first check's, not the last network
+    assert not all(torch.equal(snapshots[0][k], snapshots[1][k]) for k in saved)  # it learned in between
+    last = torch.load(plain["checkpoint"], weights_only=True)["state_dict"]
+    assert all(torch.equal(last[k], snapshots[1][k]) for k in last)  # validating changed nothing in training
+    assert seen == [[dqn.VALIDATION_OFFSET]] * 2 and args.episodes <= dqn.VALIDATION_OFFSET
+    history = json.loads((tmp_path / "sel" / "random_explore_seed0" / "history.json").read_text())
+    assert [c["episodes"] for c in history["selection"]] == [2, 4] and history["selection"][0]["kept"]
+    with pytest.raises(ValueError, match="select_every=-1"):
+        dqn.train(dqn.Args(**base, select_every=-1, run_dir=str(tmp_path)), progress=False)
+
+
 def test_track_writes_the_training_scalars_to_tensorboard(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
