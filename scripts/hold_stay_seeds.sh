@@ -11,8 +11,9 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 PY=.venv/bin/python
 OUT=${OUT:-runs/seeds/hold_stay}
+BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
 FCN=(--eval-box-source fcn --env.image-size 128 --env.box-hold-steps 20
-    --env.fcn-acquire-threshold 0.97 --env.fcn-track-threshold 0.9)
+    --env.fcn-acquire-threshold "${BARS% *}" --env.fcn-track-threshold "${BARS#* }")
 lanes() {
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset hold_stay --out-dir "$OUT" --seeds 0 2 4 "$@" >/dev/null &
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset hold_stay --out-dir "$OUT" --seeds 1 3 "$@" >/dev/null &

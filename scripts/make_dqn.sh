@@ -15,7 +15,8 @@ SEED=${SEED:-0}
 OUT=${OUT:-agents/weights/dqn.pt}
 RUN=runs/make_dqn/${PRESET}_seed${SEED}
 $PY -m mani_active_vision.agents.dqn "$PRESET" --seed "$SEED" --run-dir runs/make_dqn --run-name "${PRESET}_seed${SEED}" "$@"
-SHIP_ARGS=${SHIP_ARGS-"--fcn-acquire-threshold 0.97 --fcn-track-threshold 0.9"}
+BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
+SHIP_ARGS=${SHIP_ARGS-"--fcn-acquire-threshold ${BARS% *} --fcn-track-threshold ${BARS#* }"}
 # shellcheck disable=SC2086
 $PY baselines/ship_dqn.py --checkpoint "$RUN/q_network.pt" --out "$OUT" $SHIP_ARGS
 $PY baselines/evaluate.py --policy explore --then dqn --checkpoint "$OUT" --episodes 50 \
