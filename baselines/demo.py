@@ -68,8 +68,7 @@ def eval_env(args: Args, box_source: str) -> EnvConfig:
     config = args.env.replace(box_source=box_source, object_set=args.eval_object_set)
     if box_source != "fcn":
         return config
-    acquire, track = DQN_FCN_THRESHOLDS
-    return config.on_fcn_box().replace(fcn_acquire_threshold=acquire, fcn_track_threshold=track)
+    return config.on_fcn_box(DQN_FCN_THRESHOLDS)
 
 
 def main(args: Args):

@@ -47,13 +47,8 @@ def ship(args: Args) -> EnvConfig:
     trained = config.get("trained_env", config["env"])
     env = (
         EnvConfig.from_dict(trained)
-        .on_fcn_box()
-        .replace(
-            object_set=args.object_set,
-            box_hold_steps=args.box_hold_steps,
-            fcn_acquire_threshold=args.fcn_acquire_threshold,
-            fcn_track_threshold=args.fcn_track_threshold,
-        )
+        .on_fcn_box((args.fcn_acquire_threshold, args.fcn_track_threshold))
+        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
     )
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

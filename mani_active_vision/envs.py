@@ -142,10 +142,15 @@ class EnvConfig:
             raise TypeError(f"EnvConfig has no option {', '.join(sorted(unknown))}; options: {valid}")
         return dataclasses.replace(self, **changes)
 
-    def on_fcn_box(self) -> EnvConfig:
+    def on_fcn_box(self, thresholds: tuple[float, float] | None = None) -> EnvConfig:
         """This config on the FCN's box as the shipped agents are deployed: the camera at `FCN_IMAGE_SIZE`, the box
-        held `FCN_BOX_HOLD_STEPS` steps through the FCN's misses."""
-        return self.replace(box_source="fcn", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS)
+        held `FCN_BOX_HOLD_STEPS` steps through the FCN's misses; with `thresholds`, the verifier's bars
+        (`fcn_acquire_threshold`, `fcn_track_threshold`; e.g. `DQN_FCN_THRESHOLDS`), else this config's."""
+        config = self.replace(box_source="fcn", image_size=FCN_IMAGE_SIZE, box_hold_steps=FCN_BOX_HOLD_STEPS)
+        if thresholds is None:
+            return config
+        acquire, track = thresholds
+        return config.replace(fcn_acquire_threshold=acquire, fcn_track_threshold=track)
 
     @classmethod
     def from_dict(cls, options: dict) -> EnvConfig:

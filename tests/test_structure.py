@@ -36,6 +36,11 @@ def test_env_config_validates_and_replaces_by_name():
     with pytest.raises(TypeError, match="no option colour; options: num_objects, object_set"):
         config.replace(colour="red")
     assert EnvConfig.from_dict(dataclasses.asdict(config)) == config
+    deployed = config.on_fcn_box()  # as the shipped agents are deployed, the verifier's bars the config's own
+    assert (deployed.box_source, deployed.image_size, deployed.box_hold_steps) == ("fcn", 128, 20)
+    assert (deployed.fcn_acquire_threshold, deployed.fcn_track_threshold) == (0.0, 0.0)
+    barred = config.on_fcn_box((0.97, 0.9))
+    assert (barred.fcn_acquire_threshold, barred.fcn_track_threshold) == (0.97, 0.9)
     with pytest.raises(ValueError, match="object_set='toys' is not one of: train, unseen, primitives"):
         make_env(EnvConfig(object_set="toys"))  # the task's own options are checked by the task
 
