@@ -339,24 +339,41 @@ class ExploreDQNTeacher:
     """The shipped agent as the teacher: the scripted exploration (orbit, turning back when its own direction
     is refused) until the target is first seen, then a DQN checkpoint, asked in the learner's own states. It
     follows the learner's trajectory: the hand-over latches on the learner's first sighting and the DQN's
-    previous direction is the one the learner took, as it would be had the DQN acted. The DQN sees the box
-    alone (x, y, w, h), as it was trained. With `stays` (the env has `stay`, the DQN may not) it takes `stay`
-    while the task reports success and the target's share is at least `stay_limits[0]` and its centre offset
-    at most `stay_limits[1]` (`Args.teacher_stay_margin`); a `stay` is no previous direction for a
-    six-direction DQN."""
+    previous action is the one the learner took, as it would be had the DQN acted. The DQN sees what it was
+    trained on: the box (x, y, w, h), the mask stats if its env had them (the last three numbers of the
+    learner's state: `mask_stats_in_obs`), a one-hot of its previous action if it used one; a DQN trained with
+    `avoid_refused` does not repeat an action the controller has just refused, as `DQNPolicy` does. A DQN
+    with `stay` (the shipped `hold_stay` one) stays by itself; with `stays` (the env has `stay`, the DQN may
+    not) it also takes `stay` while the task reports success and the target's share is at least
+    `stay_limits[0]` and its centre offset at most `stay_limits[1]` (`Args.teacher_stay_margin`); a `stay` is
+    no previous direction for a six-direction DQN."""
 
-    def __init__(self, env, checkpoint: str, stays: bool = False, stay_limits: tuple[float, float] = (0.0, 1.0)):
+    def __init__(
+        self,
+        env,
+        checkpoint: str,
+        stays: bool = False,
+        stay_limits: tuple[float, float] = (0.0, 1.0),
+        mask_stats_in_obs: bool = False,
+    ):
         self.q_network, config = load_q_network(checkpoint)
         self.n, self.actions, self.stays = env.unwrapped.num_envs, num_actions(env), stays
         self.stay_limits = stay_limits
         self.with_last_action = bool(config.get("with_last_action", False))
+        self.avoid_refused = bool(config.get("avoid_refused", False))
+        self.mask_stats = bool(config["env"].get("with_mask_stats", False))
         q_actions = self.q_network.num_actions
-        expected = 4 + (q_actions if self.with_last_action else 0)
-        if self.q_network.state_dim != expected or q_actions not in (self.actions, len(DIRECTIONS)):
+        expected = 4 + 3 * self.mask_stats + (q_actions if self.with_last_action else 0)
+        if (
+            self.q_network.state_dim != expected
+            or q_actions not in (self.actions, len(DIRECTIONS))
+            or (self.mask_stats and not mask_stats_in_obs)
+        ):
             raise ValueError(
                 f"teacher {checkpoint!r} takes a state of {self.q_network.state_dim} numbers and {q_actions} "
-                f"actions; the learner's env gives the box (4) and {self.actions} actions (the six directions"
-                f"{' and stay' if self.actions > len(DIRECTIONS) else ''})"
+                f"actions{' (with the mask stats)' if self.mask_stats else ''}; the learner's env gives the box (4)"
+                f"{', the mask stats (3)' if mask_stats_in_obs else ''} and {self.actions} actions (the six "
+                f"directions{' and stay' if self.actions > len(DIRECTIONS) else ''})"
             )
         self.direction = np.full(self.n, LEFT)
         self.handed_over = np.zeros(self.n, dtype=bool)
@@ -364,24 +381,27 @@ class ExploreDQNTeacher:
         self.executed_action = np.full(self.n, -1)
 
     def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
-        refused = info_flags(info, "refused", self.n) & (self.executed_action == self.direction) & ~starts
-        self.direction[refused] = np.where(self.direction[refused] == LEFT, RIGHT, LEFT)
+        refused = info_flags(info, "refused", self.n) & ~starts
+        turn = refused & (self.executed_action == self.direction)
+        self.direction[turn] = np.where(self.direction[turn] == LEFT, RIGHT, LEFT)
         self.direction[starts], self.handed_over[starts], self.last_action[starts] = LEFT, False, -1
-        box = box_array(obs)[:, :4]
-        self.handed_over |= box[:, 2] > 0
-        state = box
+        box_state = box_array(obs)
+        self.handed_over |= box_state[:, 2] > 0
+        parts = [box_state[:, :4]] + ([box_state[:, -3:]] if self.mask_stats else [])
         if self.with_last_action:
-            one_hot = (self.last_action[:, None] == np.arange(self.q_network.num_actions)).astype(np.float32)
-            state = np.concatenate([box, one_hot], 1)
+            parts.append((self.last_action[:, None] == np.arange(self.q_network.num_actions)).astype(np.float32))
         with torch.no_grad():
-            greedy = self.q_network(torch.as_tensor(state)).argmax(-1).numpy()
-        action = np.where(self.handed_over, greedy, self.direction)
+            q = self.q_network(torch.as_tensor(np.concatenate(parts, 1)))
+        if self.avoid_refused:
+            again = np.flatnonzero(refused & (self.last_action >= 0) & (self.last_action < q.shape[1]))
+            q[again, self.last_action[again]] = -torch.inf
+        action = np.where(self.handed_over, q.argmax(-1).numpy(), self.direction)
         if self.stays:
             action[in_success_with_margin(info, self.n, self.stay_limits) & ~starts] = STAY_INDEX
         return action.astype(np.int64)
 
     def executed(self, action: np.ndarray):
-        """The action the learner took: the DQN's previous direction from the hand-over on."""
+        """The action the learner took: the DQN's previous action from the hand-over on."""
         self.executed_action = np.asarray(action).copy()
         self.last_action = np.where(self.handed_over, self.executed_action, -1)
 
@@ -407,7 +427,7 @@ def make_teacher(env, args: Args):
         teacher = ServoTeacher(env, args.teacher_stays)
     else:
         limits = margin_limits(args.env.success_fraction, args.env.success_center_tol, args.teacher_stay_margin)
-        teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits)
+        teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits, args.env.with_mask_stats)
     return GroundTruthBoxTeacher(teacher) if args.teacher_box == "ground_truth" else teacher
 
 

@@ -57,6 +57,10 @@ class Args:
     """objects of the evaluation episodes"""
     boxes: list[str] = field(default_factory=lambda: list(BOXES))
     """the boxes the agents are evaluated on: fcn (as deployed) and ground_truth (the reference column)"""
+    fcn_thresholds: tuple[float, float] = (0.0, 0.0)
+    """the verifier's bars (acquire, track) of the memory agents' FCN box: 0 0 keeps their env's (the FCN's
+    own); e.g. 0.97 0.9 (envs.DQN_FCN_THRESHOLDS) as the shipped DQN is deployed. Evaluations with bars are
+    kept in their own files"""
     dqn_checkpoint: str = "agents/weights/dqn_hold_demo_wide.pt"
     """the DQN of the baselines (explore -> dqn, and dqn without exploration): the teacher's"""
     out_dir: str = "runs/search_seeds"
@@ -165,13 +169,20 @@ def baselines(args: Args, box: str) -> dict[str, dict]:
     return out
 
 
+def barred(args: Args, box: str) -> bool:
+    return box == "fcn" and any(args.fcn_thresholds)
+
+
 def memory_path(args: Args, seed: int, box: str) -> str:
-    return os.path.join(seed_dir(args, seed), f"eval_{box}_{args.eval_episodes}.json")
+    bars = "_bars{:g}_{:g}".format(*args.fcn_thresholds) if barred(args, box) else ""
+    return os.path.join(seed_dir(args, seed), f"eval_{box}{bars}_{args.eval_episodes}.json")
 
 
 def evaluate_seed(args: Args, seed: int, box: str) -> dict:
     checkpoint = os.path.join(seed_dir(args, seed), "agent.pt")
     config = eval_config(checkpoint_env_config(checkpoint), args, box)
+    if barred(args, box):
+        config = config.on_fcn_box(args.fcn_thresholds)
     return evaluate_cached(args, memory_path(args, seed, box), config, "memory", box, checkpoint=checkpoint)
 
 
@@ -329,7 +340,8 @@ def main(args: Args):
     os.makedirs(args.figures_dir, exist_ok=True)
     text = []
     for box in args.boxes:
-        text.append(f"### {box} box\n\n{table(args, box)}\n")
+        bars = " (memory agents with the verifier's bars {:g}, {:g})".format(*args.fcn_thresholds)
+        text.append(f"### {box} box{bars if barred(args, box) else ''}\n\n{table(args, box)}\n")
     note = (
         f"({args.eval_episodes} evaluation episodes per agent from seed 1,000,000, {args.eval_object_set} objects; "
         "saw the target: the share of episodes in which it was ever in view; focus held and steps over the episodes "

@@ -15,6 +15,7 @@ import mani_active_vision as mav
 from mani_active_vision.agents import search
 from mani_active_vision.agents.policies import (
     DOWN,
+    FORWARD,
     LEFT,
     RIGHT,
     STAY_INDEX,
@@ -165,6 +166,41 @@ def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
     well_inside = {**in_success, "target_fraction": np.array([0.07])}
     assert wary.act(seen, well_inside, going)[0] == STAY_INDEX
     assert wary.act(seen, {**well_inside, "target_center_offset": [0.12]}, going)[0] != STAY_INDEX
+
+
+SHIPPED_DQN = os.path.join(os.path.dirname(DQN_WEIGHTS), "dqn.pt")
+
+
+def test_the_shipped_dqn_teaches_on_the_box_and_mask_stats_and_stays_by_itself():
+    n7 = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(7))
+    q_network, config = load_q_network(SHIPPED_DQN)
+    assert config["env"]["with_mask_stats"] and config["avoid_refused"] and q_network.num_actions == 7
+    with pytest.raises(ValueError, match="with the mask stats"):
+        search.ExploreDQNTeacher(n7, SHIPPED_DQN)  # the learner's state must carry what the DQN was trained on
+    teacher = search.ExploreDQNTeacher(n7, SHIPPED_DQN, mask_stats_in_obs=True)
+    start, going = np.array([True]), np.array([False])
+
+    def learner_state(box, stats):  # the box, the camera's position, the mask's share and centroid offset
+        return np.array([box + [0.5, 0.0, 0.6] + stats], np.float32)
+
+    def q_values(box, stats, last):
+        one_hot = [float(a == last) for a in range(7)]
+        with torch.no_grad():
+            return q_network(torch.tensor([box + stats + one_hot]))[0]
+
+    near, near_stats = [0.3, 0.3, 0.4, 0.4], [0.09, 0.0, 0.0]  # big and centred: well inside success
+    far, far_stats = [0.4, 0.4, 0.2, 0.2], [0.05, 0.0, 0.0]  # centred, at the edge of success
+    assert teacher.act(np.zeros((1, 10), np.float32), {}, start)[0] == LEFT
+    teacher.executed(np.array([LEFT]))
+    first = teacher.act(learner_state(near, near_stats), {}, going)[0]
+    assert first == q_values(near, near_stats, None).argmax().item() == STAY_INDEX  # it stays by itself
+    teacher.executed(np.array([FORWARD]))  # the learner went forward instead
+    q = q_values(far, far_stats, FORWARD)
+    assert teacher.act(learner_state(far, far_stats), {}, going)[0] == q.argmax().item() == FORWARD  # on forward
+    teacher.executed(np.array([FORWARD]))  # and the controller refused it
+    q[FORWARD] = -torch.inf  # trained with avoid_refused: a refused action is not asked for again at once
+    refused = {"refused": np.array([True])}
+    assert teacher.act(learner_state(far, far_stats), refused, going)[0] == q.argmax().item() != FORWARD
 
 
 def test_a_ground_truth_box_teacher_sees_the_segmentations_box_and_the_learners_position():
