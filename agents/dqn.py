@@ -102,6 +102,9 @@ class Args:
     """training episodes (paper: 100)"""
     learning_rate: float = 1e-3
     """Adam learning rate (paper: 1e-3)"""
+    end_learning_rate: float = 0.0
+    """0: the learning rate stays `learning_rate`; else it goes linearly from `learning_rate` at the first
+    episode to this at the last, like ε, so that the last episodes move the network less"""
     buffer_size: int = 50_000
     """replay buffer capacity in transitions (paper: 50,000)"""
     hidden_units: int = 20
@@ -504,6 +507,8 @@ def train(args: Args, progress: bool = True) -> dict:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
     if not 0 <= args.box_dropout < 1:
         raise ValueError(f"box_dropout={args.box_dropout} must be a probability in [0, 1)")
+    if args.end_learning_rate < 0:
+        raise ValueError(f"end_learning_rate={args.end_learning_rate} must be ≥ 0 (0: constant learning_rate)")
     if args.env.box_source == "none":
         raise ValueError("the DQN learns on the box state: env.box_source must be ground_truth or fcn")
     if args.episodes % args.num_envs:
@@ -559,6 +564,9 @@ def train(args: Args, progress: bool = True) -> dict:
                 [linear_schedule(args.start_epsilon, args.end_epsilon, args.episodes - 1, e) for e in episodes]
             )
             mixed.demo = episodes < args.demo_episodes
+            if args.end_learning_rate:
+                lr = linear_schedule(args.learning_rate, args.end_learning_rate, args.episodes - 1, first)
+                optimizer.param_groups[0]["lr"] = lr
             seeds = [args.seed * TRAIN_SEED_STRIDE + int(e) for e in episodes]
             obs, info = env.reset(seed=seeds[0] if n == 1 else seeds)
             if args.box_dropout:
@@ -621,6 +629,7 @@ def train(args: Args, progress: bool = True) -> dict:
                     {
                         "episode": int(episode),
                         "epsilon": float(learner.epsilon[i]),
+                        "learning_rate": float(optimizer.param_groups[0]["lr"]),
                         "learner_steps": int(learner_steps[i]),
                         "learner_return": float(learner_return[i]),
                         "demo": bool(mixed.demo[i]),

@@ -206,9 +206,14 @@ def test_focus_held_is_the_share_in_success_from_the_first_success_on():
 
 def test_a_short_training_run_end_to_end(tmp_path):
     short = EnvConfig(max_episode_steps=40)  # short episodes: the same code, less time
-    args = dqn.Args(env=short, episodes=2, learning_starts=20, target_update_steps=50, run_dir=str(tmp_path))
+    args = dqn.Args(
+        env=short, episodes=2, learning_starts=20, target_update_steps=50, end_learning_rate=1e-4, run_dir=str(tmp_path)
+    )
     result = dqn.train(args, progress=False)
     assert len(result["history"]) == 2 and result["history"][1]["epsilon"] == pytest.approx(0.02)
+    assert [h["learning_rate"] for h in result["history"]] == pytest.approx([1e-3, 1e-4])  # decayed like ε
+    with pytest.raises(ValueError, match="end_learning_rate=-0.1 must be ≥ 0"):
+        dqn.train(dataclasses.replace(args, end_learning_rate=-0.1), progress=False)
     assert sum(h["learner_steps"] for h in result["history"]) > 0  # the target was seen, the DQN acted
     assert not math.isnan(result["history"][-1]["td_loss"])
     checkpoint = torch.load(result["checkpoint"], weights_only=True)
