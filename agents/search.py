@@ -17,8 +17,9 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   offset (where success begins: the shipped agent's), and a one-hot of its own previous action;
 - a GRU (64 units) whose state is zeroed at every episode start, in the rollouts, in the updates (whole
   sequences replayed with the same resets) and in evaluation;
-- the teacher (`teacher`): the scripted exploration handing over to the six-direction DQN of
-  `agents/weights/dqn_hold_demo_wide.pt` (the agent shipped before `hold_stay`), or the scripted servo; it
+- the teacher (`teacher`): the scripted exploration handing over to a DQN checkpoint (by default the
+  six-direction `agents/weights/dqn_hold_demo_wide.pt`, the agent shipped before `hold_stay`; the shipped
+  `dqn.pt`, which stays by itself, measured in docs/search.md), or the scripted servo; it
   runs beside the learner and labels the learner's own states (its sweep turns on the learner's refusals,
   its hand-over latches on the learner's first sighting);
 - `algo=dagger` (Ross et al., 2011): the greedy learner acts on `num_envs` `make_vec_env` worker processes,
@@ -71,7 +72,7 @@ from mani_active_vision.agents.policies import (
     margin_limits,
     num_actions,
 )
-from mani_active_vision.agents.q_network import load_q_network
+from mani_active_vision.agents.q_network import checkpoint_env_config, load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim, save_agent
 from mani_active_vision.directions import DIRECTIONS
 from mani_active_vision.envs import EnvConfig
@@ -148,8 +149,9 @@ class Args:
     demo_* and PPO options are not used)"""
     teacher: str = "agents/weights/dqn_hold_demo_wide.pt"
     """whose actions label the learner's states (and play the cloned episodes): servo (the scripted servo), or
-    a six-direction DQN checkpoint on the box alone, e.g. agents/weights/dqn_hold_demo_wide.pt (the scripted
-    exploration handing over to that DQN, as it is deployed)"""
+    a DQN checkpoint (the scripted exploration handing over to that DQN, as it is deployed), e.g.
+    agents/weights/dqn_hold_demo_wide.pt (six directions, the box alone) or agents/weights/dqn.pt (`stay` and
+    the mask stats: needs env.stay_action and env.with_mask_stats)"""
     teacher_stays: bool = False
     """the teacher takes `stay` (the env needs stay_action) while the task reports success: privileged (the
     ground truth's success), a teacher that shows holding"""
@@ -199,6 +201,11 @@ def check(args: Args):
         raise ValueError("algo=dagger fits whole episodes of max_episode_steps: it needs env.terminate_on_success off")
     if args.teacher != "servo" and not os.path.isfile(args.teacher):
         raise ValueError(f"teacher={args.teacher!r} is neither servo nor a DQN checkpoint file")
+    if args.teacher != "servo":
+        taught_in = checkpoint_env_config(args.teacher)  # the learner's state must carry what the DQN reads
+        for option in ("with_mask_stats", "stay_action"):
+            if getattr(taught_in, option) and not getattr(args.env, option):
+                raise ValueError(f"teacher {args.teacher!r} was trained with {option}: it needs env.{option}")
     if args.teacher_stays and not args.env.stay_action:
         raise ValueError("teacher_stays takes `stay`: it needs env.stay_action")
     if args.teacher_box not in TEACHER_BOXES:

@@ -251,6 +251,8 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
         search.check(dataclasses.replace(search.Args(), algo="sac"))
     with pytest.raises(ValueError, match="teacher='nope.pt' is neither servo nor a DQN checkpoint"):
         search.check(dataclasses.replace(search.Args(), teacher="nope.pt"))
+    with pytest.raises(ValueError, match="dqn.pt' was trained with with_mask_stats: it needs env.with_mask_stats"):
+        search.check(dataclasses.replace(search.Args(), teacher=SHIPPED_DQN))
     with pytest.raises(ValueError, match="teacher_stays takes `stay`: it needs env.stay_action"):
         search.check(dataclasses.replace(search.Args(), teacher_stays=True))
     with pytest.raises(ValueError, match=r"teacher_stay_margin=1.5 must be in \[0, 1\)"):
