@@ -83,6 +83,20 @@ def in_success_with_margin(info, num_envs: int, limits: tuple[float, float]) -> 
     return inside
 
 
+def one_hot(actions: np.ndarray, num_actions: int) -> np.ndarray:
+    """(N, num_actions) float32: a DQN's previous action in its state; zeros where there is none (-1) or it is
+    not one of the network's actions (a six-direction DQN's `stay`)."""
+    return (np.asarray(actions)[:, None] == np.arange(num_actions)).astype(np.float32)
+
+
+def rule_out_refused(q: torch.Tensor, refused: np.ndarray, last_action: np.ndarray) -> torch.Tensor:
+    """`q` (N, actions) with each env's last action set to -inf where the controller has just refused it: a
+    refused step leaves the state as it was, so a memoryless greedy policy would repeat it (`avoid_refused`)."""
+    again = np.flatnonzero(refused & (last_action >= 0) & (last_action < q.shape[1]))
+    q[again, last_action[again]] = -torch.inf
+    return q
+
+
 class RandomPolicy:
     """Uniformly random actions (a lower bound)."""
 
@@ -243,15 +257,13 @@ class DQNPolicy:
         box = box_array(obs)
         if not self.with_last_action:
             return box
-        one_hot = (self.last_action[:, None] == np.arange(self.num_actions)).astype(np.float32)
-        return np.concatenate([box, one_hot], 1)
+        return np.concatenate([box, one_hot(self.last_action, self.num_actions)], 1)
 
     def act(self, obs, info) -> np.ndarray:
         with torch.no_grad():
             q = self.q_network(torch.as_tensor(self.state(obs)))
         if self.avoid_refused:
-            refused = np.flatnonzero(info_flags(info, "refused", self.num_envs) & (self.last_action >= 0))
-            q[refused, self.last_action[refused]] = -torch.inf
+            q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
         action = q.argmax(-1).numpy().astype(np.int64)
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))

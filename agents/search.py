@@ -71,6 +71,8 @@ from mani_active_vision.agents.policies import (
     info_flags,
     margin_limits,
     num_actions,
+    one_hot,
+    rule_out_refused,
 )
 from mani_active_vision.agents.q_network import checkpoint_env_config, load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim, save_agent
@@ -396,12 +398,11 @@ class ExploreDQNTeacher:
         self.handed_over |= box_state[:, 2] > 0
         parts = [box_state[:, :4]] + ([box_state[:, -3:]] if self.mask_stats else [])
         if self.with_last_action:
-            parts.append((self.last_action[:, None] == np.arange(self.q_network.num_actions)).astype(np.float32))
+            parts.append(one_hot(self.last_action, self.q_network.num_actions))
         with torch.no_grad():
             q = self.q_network(torch.as_tensor(np.concatenate(parts, 1)))
         if self.avoid_refused:
-            again = np.flatnonzero(refused & (self.last_action >= 0) & (self.last_action < q.shape[1]))
-            q[again, self.last_action[again]] = -torch.inf
+            q = rule_out_refused(q, refused, self.last_action)
         action = np.where(self.handed_over, q.argmax(-1).numpy(), self.direction)
         if self.stays:
             action[in_success_with_margin(info, self.n, self.stay_limits) & ~starts] = STAY_INDEX

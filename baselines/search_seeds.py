@@ -113,11 +113,11 @@ def train_seed(args: Args, seed: int):
     search.train(options)
 
 
-def eval_config(base: EnvConfig, args: Args, box: str) -> EnvConfig:
-    """`base` on the evaluation objects and this box: the FCN's as deployed (`EnvConfig.on_fcn_box`), or the
-    ground truth's as it is (nothing held)."""
+def eval_config(base: EnvConfig, args: Args, box: str, thresholds: tuple[float, float] | None = None) -> EnvConfig:
+    """`base` on the evaluation objects and this box: the FCN's as deployed (`EnvConfig.on_fcn_box`, with
+    `thresholds` the verifier's bars), or the ground truth's as it is (nothing held)."""
     base = base.replace(object_set=args.eval_object_set)
-    return base.on_fcn_box() if box == "fcn" else base.replace(box_source=box, box_hold_steps=0)
+    return base.on_fcn_box(thresholds) if box == "fcn" else base.replace(box_source=box, box_hold_steps=0)
 
 
 def references(args: Args, box: str) -> dict[int, float]:
@@ -180,9 +180,8 @@ def memory_path(args: Args, seed: int, box: str) -> str:
 
 def evaluate_seed(args: Args, seed: int, box: str) -> dict:
     checkpoint = os.path.join(seed_dir(args, seed), "agent.pt")
-    config = eval_config(checkpoint_env_config(checkpoint), args, box)
-    if barred(args, box):
-        config = config.on_fcn_box(args.fcn_thresholds)
+    thresholds = args.fcn_thresholds if barred(args, box) else None
+    config = eval_config(checkpoint_env_config(checkpoint), args, box, thresholds)
     return evaluate_cached(args, memory_path(args, seed, box), config, "memory", box, checkpoint=checkpoint)
 
 
