@@ -1,8 +1,10 @@
 """Perturbations: after the agent has focused on the target (first success), the arm is forced away for
 a few steps in a random direction (small and large pushes), then the agent acts again. Reports the
-recovery rate and the steps to recover, for the DQN (exploration, then DQN) against the scripted servo.
+recovery rate and the steps to recover, for a learned agent (the exploration handing over to a DQN, or the
+memory agent) against the scripted servo.
 
     python baselines/perturb.py --checkpoint runs/fig5/random_explore/seed0/q_network.pt --episodes 10
+    python baselines/perturb.py --policy memory --checkpoint agents/weights/search.pt --episodes 50 --push-steps 6
 
 With a checkpoint the env is the one it was trained in (each `--env.*` flag given overrides that option);
 its step limit is raised to fit focus, push and recovery.
@@ -34,7 +36,10 @@ class Args:
     env: EnvConfig = field(default_factory=EnvConfig)
     """the env (default: the checkpoint's, if one is given)"""
     checkpoint: str = ""
-    """a DQN checkpoint trained with exploration (empty: the servo only)"""
+    """the learned agent's checkpoint (empty: the servo only)"""
+    policy: str = "explore"
+    """what the checkpoint is: explore (a DQN trained with exploration, acting after it) or memory (the memory
+    agent, agents/search.py: no script; its GRU is not shown the pushed steps)"""
     episodes: int = 10
     """scenes (seeds from `seed`); each gets one small and one large push"""
     seed: int = EVAL_SEED
@@ -47,12 +52,19 @@ class Args:
     """where the results go"""
 
 
+LEARNED = ("explore", "memory")
+
+
 def main(args: Args):
+    if args.policy not in LEARNED:
+        raise ValueError(f"policy={args.policy!r} is not one of: {', '.join(LEARNED)}")
     torch.set_num_threads(1)
     config = args.env.replace(max_episode_steps=FOCUS_LIMIT + max(args.push_steps) + args.recover_limit)
     env = make_env(config)
     policies = {"servo": make_policy("servo", env)}
-    if args.checkpoint:
+    if args.checkpoint and args.policy == "memory":
+        policies["memory"] = make_policy("memory", env, checkpoint=args.checkpoint)
+    elif args.checkpoint:
         policies["explore→dqn"] = make_policy("explore", env, then="dqn", checkpoint=args.checkpoint, seed=args.seed)
     rng = np.random.default_rng(args.seed)
     pushes = rng.integers(0, len(DIRECTIONS), size=(args.episodes, len(args.push_steps)))

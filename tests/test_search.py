@@ -2,8 +2,10 @@
 and the `memory` policy."""
 
 import dataclasses
+import importlib.util
 import json
 import os
+import sys
 import types
 
 import gymnasium as gym
@@ -292,3 +294,25 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     finally:
         env.close()
     assert policy.last_action[0] in range(7)
+
+
+def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, monkeypatch):
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    spec = importlib.util.spec_from_file_location("perturb", os.path.join(root, "baselines", "perturb.py"))
+    perturb = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "perturb", perturb)  # its dataclasses look their module up there
+    spec.loader.exec_module(perturb)
+    checkpoint = os.path.join(root, "agents", "weights", "search.pt")
+    env = checkpoint_env_config(checkpoint).replace(box_source="ground_truth", box_hold_steps=0, image_size=32)
+    with pytest.raises(ValueError, match="policy='dqn' is not one of: explore, memory"):
+        perturb.main(perturb.Args(env=env, checkpoint=checkpoint, policy="dqn"))
+    args = perturb.Args(
+        env=env, checkpoint=checkpoint, policy="memory", episodes=1, push_steps=[2], recover_limit=5,
+        json=str(tmp_path / "perturb.json"),
+    )  # fmt: skip
+    perturb.main(args)
+    results = json.loads((tmp_path / "perturb.json").read_text())["results"]
+    assert set(results) == {"servo/push2", "memory/push2"}
+    trial = results["memory/push2"]["trials"][0]
+    assert set(trial) == {"focused", "visible_after_push", "recovered", "steps_to_recover"}
+    assert trial["recovered"] <= trial["focused"]  # recovery is asked only of a focused agent
