@@ -32,8 +32,9 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   the learner's reward is the DQN's `hold` reward (`agents.dqn.LearnerReward`, docs/design.md §9); a
   truncated episode is treated as ended (no bootstrap past the step limit), as CleanRL does.
 The episode is the task as it is (100 steps from the `sky` start, no end at success). Training is on the
-ground-truth box (cheaper than the FCN's); evaluation on the FCN's box is the deployed condition. `--track`
-writes the training scalars to TensorBoard.
+ground-truth box by default (cheaper); the shipped agent learns on the FCN's box as it is deployed, the
+teacher acting on the same box, so that its labels match what the learner sees (scripts/make_search.sh,
+docs/search.md). `--track` writes the training scalars to TensorBoard.
 """
 
 from __future__ import annotations

@@ -260,7 +260,8 @@ def plot_learning_curves(args: Args, path: str, bin_steps: int = 5_000):
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"training episodes' share ({bin_steps:,}-step bins)")
     learner = {"ppo": "recurrent PPO", "dagger": "DAgger"}[args.train.algo]
-    ax.set_title(f"memory agent ({learner}), ground-truth box, train objects")
+    box = {"fcn": "the FCN's box", "ground_truth": "ground-truth box"}[args.train.env.box_source]
+    ax.set_title(f"memory agent ({learner}), {box}, train objects")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend()

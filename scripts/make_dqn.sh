@@ -4,7 +4,7 @@
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
 # baselines/ship_dqn.py, with the verifier bars of envs.DQN_FCN_THRESHOLDS: 0.97 to acquire a region, 0.9 to
 # keep it), then evaluate it as deployed on 50 held-out episodes (docs/control.md §7).
-# The six-direction agent shipped before it, the memory agent's teacher (docs/search.md), is remade by
+# The six-direction agent shipped before it (the teacher of the memory agent shipped before; docs/search.md) is remade by
 #   PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt SHIP_ARGS= bash scripts/make_dqn.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -29,7 +29,7 @@ from mani_active_vision.agents.policies import (
 )
 from mani_active_vision.agents.q_network import checkpoint_env_config, load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim
-from mani_active_vision.envs import FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import DQN_FCN_THRESHOLDS, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 
 SHORT = EnvConfig(with_ee_pos=True, max_episode_steps=12)  # short episodes: the same code, less time
@@ -285,8 +285,11 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     config = torch.load(path, weights_only=True)["config"]
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
-    assert deployed.stay_action and deployed.with_mask_stats and config["teacher_stay_margin"] == 0.3
-    assert deployed == trained.on_fcn_box().replace(object_set="unseen") and deployed.image_size == FCN_IMAGE_SIZE
+    assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn.pt"
+    assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True).on_fcn_box(
+        DQN_FCN_THRESHOLDS
+    )  # it learnt on the box it acts on, with the verifier's bars of its teacher, the shipped DQN
+    assert deployed == trained.replace(object_set="unseen") and deployed.image_size == FCN_IMAGE_SIZE
     env = mav.make_env(deployed.replace(max_episode_steps=10))
     try:
         policy = make_policy("memory", env, checkpoint=path)
