@@ -1,7 +1,6 @@
 """Control: the DQN's pieces, the policies, the metrics and a short end-to-end training run."""
 
 import dataclasses
-import importlib.util
 import json
 import math
 import os
@@ -364,11 +363,8 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
     assert episode["steps_to_see"] < 25
 
 
-def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(monkeypatch):
-    spec = importlib.util.spec_from_file_location("seeds", os.path.join(ROOT, "baselines", "seeds.py"))
-    seeds = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "seeds", seeds)  # its dataclasses look their module up there
-    spec.loader.exec_module(seeds)
+def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(baseline_script):
+    seeds = baseline_script("seeds")
     args = seeds.Args(preset="hold_demo", set=["demo_episodes=20", "demo_margin=0.8", "double_dqn=false"])
     assert seeds.train_options(args) == {"demo_episodes": 20, "demo_margin": 0.8, "double_dqn": False}
     assert seeds.label(args) == "hold_demo" and seeds.label(dataclasses.replace(args, name="x")) == "x"
@@ -383,11 +379,8 @@ def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(monkeypat
         cli_with_preset_env(seeds.Args, ["--preset", "x"])
 
 
-def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(monkeypatch, tmp_path):
-    spec = importlib.util.spec_from_file_location("focus_curve", os.path.join(ROOT, "baselines", "focus_curve.py"))
-    focus_curve = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "focus_curve", focus_curve)
-    spec.loader.exec_module(focus_curve)
+def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(baseline_script, monkeypatch, tmp_path):
+    focus_curve = baseline_script("focus_curve")
     shipped = os.path.join(ROOT, "agents", "weights", "dqn.pt")
     args = focus_curve.Args(agents=[], episodes=2, box_source="ground_truth")
     share = focus_curve.in_success(shipped, args)
@@ -442,11 +435,8 @@ def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
         dqn.train(dataclasses.replace(args, env=args.env.replace(with_ee_pos=True)), progress=False)
 
 
-def test_ending_cycle_finds_the_period_of_the_last_actions(monkeypatch):
-    spec = importlib.util.spec_from_file_location("action_counts", os.path.join(ROOT, "baselines", "action_counts.py"))
-    counts = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "action_counts", counts)
-    spec.loader.exec_module(counts)
+def test_ending_cycle_finds_the_period_of_the_last_actions(baseline_script):
+    counts = baseline_script("action_counts")
     assert counts.ending_cycle([2] * 30 + [4, 5] * 10) == 2  # up, down, up, down, ...
     assert counts.ending_cycle([0, 1, 2, 3, 4] * 6) is None  # a period of 5 is not a cycle here
     assert counts.ending_cycle([3] * 25) == 1
@@ -533,11 +523,8 @@ def test_servo_demonstrations_fill_the_buffer_before_the_dqn_acts(tmp_path):
     assert result["transitions"] == 2 * (first["learner_steps"] + second["learner_steps"])  # mirrored too
 
 
-def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(monkeypatch):
-    spec = importlib.util.spec_from_file_location("box_failures", os.path.join(ROOT, "baselines", "box_failures.py"))
-    failures = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "box_failures", failures)
-    spec.loader.exec_module(failures)
+def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(baseline_script):
+    failures = baseline_script("box_failures")
 
     def steps(*pairs):  # (target pixels in view, what the box lies on: slot + 1, 0 floor, None no box)
         return [dict(target_px=px, on=on, presence=0.9) for px, on in pairs]

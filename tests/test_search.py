@@ -2,16 +2,15 @@
 and the `memory` policy."""
 
 import dataclasses
-import importlib.util
 import json
 import os
-import sys
 import types
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 
 import mani_active_vision as mav
 from mani_active_vision.agents import search
@@ -299,13 +298,9 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     assert policy.last_action[0] in range(7)
 
 
-def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, monkeypatch):
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    spec = importlib.util.spec_from_file_location("perturb", os.path.join(root, "baselines", "perturb.py"))
-    perturb = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "perturb", perturb)  # its dataclasses look their module up there
-    spec.loader.exec_module(perturb)
-    checkpoint = os.path.join(root, "agents", "weights", "search.pt")
+def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, baseline_script):
+    perturb = baseline_script("perturb")
+    checkpoint = os.path.join(ROOT, "agents", "weights", "search.pt")
     env = checkpoint_env_config(checkpoint).replace(box_source="ground_truth", box_hold_steps=0, image_size=32)
     with pytest.raises(ValueError, match="policy='dqn' is not one of: explore, memory"):
         perturb.main(perturb.Args(env=env, checkpoint=checkpoint, policy="dqn"))
