@@ -175,6 +175,10 @@ class Args:
     """dagger: labelled episodes per gradient step (drawn from all kept so far)"""
     dagger_learning_rate: float = 1e-3
     """dagger: Adam learning rate"""
+    dagger_focal_gamma: float = 0.0
+    """dagger: each step's cross-entropy weighted by (1 - p)^gamma, p the learner's probability of the teacher's
+    action (focal loss, Lin et al. 2017): the few steps it still gets wrong, such as leaving success while the
+    teacher stays, weigh more than the many it has learnt; 0: plain cross-entropy"""
     run_dir: str = "runs/search"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -217,6 +221,8 @@ def check(args: Args):
         raise ValueError(f"teacher_stay_margin={args.teacher_stay_margin} must be in [0, 1)")
     if args.teacher_stay_margin and (not args.teacher_stays or args.teacher == "servo"):
         raise ValueError("teacher_stay_margin needs teacher_stays and a DQN teacher (not servo)")
+    if args.dagger_focal_gamma < 0:
+        raise ValueError(f"dagger_focal_gamma={args.dagger_focal_gamma} must be >= 0 (0: plain cross-entropy)")
     if args.shaping not in SHAPINGS:
         raise ValueError(f"shaping={args.shaping!r} is not one of: {', '.join(SHAPINGS)}")
     if args.num_envs < 1 or args.num_envs % args.num_minibatches:
@@ -476,7 +482,7 @@ def dagger(agent: RecurrentActorCritic, collector: Collector, teacher, args: Arg
                 xs = torch.stack([kept_x[k] for k in chosen], 1)  # (T, B, input_dim)
                 labels = torch.stack([kept_labels[k] for k in chosen], 1)
                 hidden, _ = agent.memory(xs, agent.initial_state(len(chosen)), torch.zeros(xs.shape[:2]))
-                loss = F.cross_entropy(agent.actor(hidden).flatten(0, 1), labels.flatten())
+                loss = imitation_loss(agent.actor(hidden).flatten(0, 1), labels.flatten(), args.dagger_focal_gamma)
                 optimizer.zero_grad()
                 loss.backward()
                 nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
@@ -490,6 +496,12 @@ def dagger(agent: RecurrentActorCritic, collector: Collector, teacher, args: Arg
                 at_end=f"{np.mean([h['success_final'] for h in recent]):.2f}",
             )
     return {"dagger_loss": last_loss, "episodes_kept": len(kept_x)}
+
+
+def imitation_loss(logits: torch.Tensor, labels: torch.Tensor, focal_gamma: float = 0.0) -> torch.Tensor:
+    """Mean cross-entropy of logits (M, A) against labels (M,), each term weighted by (1 - p)^focal_gamma."""
+    log_p = F.log_softmax(logits, -1).gather(1, labels[:, None])[:, 0]
+    return (-log_p * (1 - log_p.exp()).pow(focal_gamma)).mean() if focal_gamma else -log_p.mean()
 
 
 def imitate_teacher(agent: RecurrentActorCritic, collector: Collector, teacher, args: Args, bar) -> dict:

@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 from conftest import ROOT
 
 import mani_active_vision as mav
@@ -237,6 +238,16 @@ def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
     torch.testing.assert_close(trained["critic.0.weight"], untrained.critic[0].weight)  # DAgger fits no value
 
 
+def test_the_focal_imitation_loss_weighs_the_steps_the_learner_gets_wrong():
+    logits = torch.tensor([[4.0, 0.0, 0.0], [0.0, 4.0, 0.0]])  # sure of action 0, then of action 1
+    labels = torch.tensor([0, 0])  # the teacher says 0 twice: right, then wrong
+    torch.testing.assert_close(search.imitation_loss(logits, labels), F.cross_entropy(logits, labels))
+    terms = F.cross_entropy(logits, labels, reduction="none")
+    p = torch.softmax(logits, -1)[:, 0]
+    torch.testing.assert_close(search.imitation_loss(logits, labels, 2.0), (terms * (1 - p) ** 2).mean())
+    assert (1 - p[0]) ** 2 < 0.01 < 0.9 < (1 - p[1]) ** 2  # the wrong step keeps its weight, the right one loses it
+
+
 def test_bad_options_are_named_with_the_valid_ones(tmp_path):
     with pytest.raises(ValueError, match="with_ee_pos must be True"):
         search.check(search.Args(env=EnvConfig()))
@@ -260,6 +271,8 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
         search.check(dataclasses.replace(search.Args(), teacher_stay_margin=1.5))
     with pytest.raises(ValueError, match="teacher_stay_margin needs teacher_stays and a DQN teacher"):
         search.check(dataclasses.replace(search.Args(), teacher_stay_margin=0.3))
+    with pytest.raises(ValueError, match=r"dagger_focal_gamma=-1.0 must be >= 0"):
+        search.check(dataclasses.replace(search.Args(), dagger_focal_gamma=-1.0))
     with pytest.raises(ValueError, match="needs a checkpoint"):
         policy_kwargs("memory")
     with pytest.raises(FileNotFoundError, match="does not exist"):
