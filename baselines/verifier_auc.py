@@ -2,7 +2,9 @@
 (`collect_rollout_frames.py`: they name each pixel's object), every candidate region of the segmentation
 network (its `verifier_regions` largest) is scored by the verifier, and, for comparison, by the silhouette
 IoU of the region against the target image's (`boxes.silhouette`: outline alone). ROC AUC of the target's
-regions against same-colour look-alikes' and against every other region, by the region's size.
+regions against same-colour look-alikes' and against every other region, by the region's size; and the share
+of the target's regions the verifier turns away at a bar (`--bar`, the deployed track bar by default), apart
+for targets cut by the image's border and whole ones.
 
     python baselines/verifier_auc.py --weights agents/weights/fcn.pt --data-dir data/rollout128/test_unseen
 """
@@ -19,6 +21,7 @@ from tqdm import tqdm
 from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
 from mani_active_vision.agents.verifier import candidate_crops, target_crops
 from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou
+from mani_active_vision.envs import DQN_FCN_THRESHOLDS
 from mani_active_vision.evaluation.rollout_frames import RELATIONS
 from mani_active_vision.segmentation_data import load_segmentation_data
 
@@ -31,13 +34,15 @@ class Args:
     weights: str = "agents/weights/fcn.pt"
     """an FCN checkpoint with a verifier"""
     data_dir: str = "data/rollout128/test_unseen"
+    bar: float = DQN_FCN_THRESHOLDS[1]
+    """the verifier probability a region needs (the deployed track bar; the acquire bar is higher)"""
 
 
 @torch.inference_mode()
 def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int = 64) -> dict[str, np.ndarray]:
     """Per candidate region of `network`: size, what it lies on ("target" or a relation, "floor or robot"),
-    `model`'s verifier probability, silhouette IoU."""
-    crop, rows = model.config.verifier_crop, dict(size=[], kind=[], probability=[], silhouette=[])
+    `model`'s verifier probability, silhouette IoU, whether the frame's target touches the image's border."""
+    crop, rows = model.config.verifier_crop, dict(size=[], kind=[], probability=[], silhouette=[], cut=[])
     for start in tqdm(range(0, len(data["scene"]), batch), desc="regions", leave=False):
         scene_rgb, target_rgb = data["scene"][start : start + batch], data["target"][start : start + batch]
         masks = network.predict(scene_rgb, target_rgb, runtime="torch").numpy()
@@ -52,6 +57,8 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
         for i, (labels, ids) in enumerate(zip(found["labels"], found["ids"])):
             objects, relations = data["objects"][start + i], data["relations"][start + i]
             picture = silhouette(pixels[i].numpy())
+            truth = data["mask"][start + i]
+            cut = bool(truth[0].any() or truth[-1].any() or truth[:, 0].any() or truth[:, -1].any())
             for k in ids:
                 region = labels == k
                 on = int(np.bincount(objects[region], minlength=256).argmax())
@@ -59,6 +66,7 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
                 rows["size"].append(int(region.sum()))
                 rows["kind"].append(kind)
                 rows["silhouette"].append(silhouette_iou(silhouette(region), picture))
+                rows["cut"].append(cut)
     return {k: np.array(v) for k, v in rows.items()}
 
 
@@ -70,9 +78,10 @@ def main(args: Args):
     rows = region_scores(model.eval(), model.network_alone(), load_segmentation_data(args.data_dir))
     print(f"{len(rows['size'])} candidate regions on {args.data_dir}, {args.weights}")
     print(
-        "| region px | target | same colour | others | AUC vs same colour: verifier | silhouette | AUC vs all: verifier |"
+        "| region px | target | same colour | others | AUC vs same colour: verifier | silhouette | AUC vs all: verifier "
+        f"| target under {args.bar}: whole | cut by the border |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for low, high in zip(SIZE_BINS[:-1], SIZE_BINS[1:]):
         sized = (rows["size"] >= low) & (rows["size"] < high)
         target, same_colour = sized & (rows["kind"] == "target"), sized & (rows["kind"] == "same colour")
@@ -82,11 +91,21 @@ def main(args: Args):
             roc_auc(rows["silhouette"][target], rows["silhouette"][same_colour]),
             roc_auc(rows["probability"][target], rows["probability"][others]),
         ]
+        turned_away = [
+            turned_away_share(rows["probability"][target & (rows["cut"] == cut)], args.bar) for cut in (False, True)
+        ]
         print(
             f"| {low}–{high if high < 10**9 else '∞'} | {target.sum()} | {same_colour.sum()} | {others.sum()} | "
             + " | ".join(f"{c:.3f}" for c in cells)
+            + " | "
+            + " | ".join(turned_away)
             + " |"
         )
+
+
+def turned_away_share(probability: np.ndarray, bar: float) -> str:
+    """The share of `probability` under `bar` and the count, "0.42 (252)"; "–" without regions."""
+    return f"{(probability < bar).mean():.2f} ({len(probability)})" if len(probability) else "–"
 
 
 if __name__ == "__main__":
