@@ -4,8 +4,9 @@ learner `agents.search` and the `memory` policy, as `q_network` is by the DQN's)
 The input at step t is `features`: the target's box (x, y, w, h; zeros when unseen), where the camera is
 commanded to be (the sine and cosine of its azimuth, its radius and height: where it has looked) and a
 one-hot of the agent's own previous action (zeros at an episode's start). A linear layer and a GRU turn the
-sequence into a state that remembers where the agent has looked; the policy and the value are linear heads
-on it. The GRU's state is zero at every episode start (`starts`), in training and in evaluation.
+sequence into a state that remembers where the agent has looked; the policy is a linear head on it (or, with
+`actor_sees_input`, a hidden layer on it and the current step's encoding), the value an MLP. The GRU's state
+is zero at every episode start (`starts`), in training and in evaluation.
 
 A checkpoint is `{"state_dict", "config"}`: `config` holds the run's arguments (`agents.search.Args` as a
 dict, its env config under "env") and `input_dim`, `hidden_units`, `num_actions`; it loads with
@@ -56,11 +57,16 @@ def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias: float = 0.0) -> 
 
 class RecurrentActorCritic(nn.Module):
     """features -> Linear + tanh -> GRU -> policy logits (linear) and value (an MLP on the GRU's output, which
-    the value's gradient does not reach: `value`)."""
+    the value's gradient does not reach: `value`).
 
-    def __init__(self, input_dim: int, num_actions: int, hidden_units: int = 64):
+    With `actor_sees_input` the policy is Linear + tanh + Linear on the GRU's output beside the current step's
+    encoding: a decision its teacher makes from the current box alone (stay while the target is centred and
+    large) then need not survive the GRU's state drifting over a long hold."""
+
+    def __init__(self, input_dim: int, num_actions: int, hidden_units: int = 64, actor_sees_input: bool = False):
         super().__init__()
         self.input_dim, self.num_actions, self.hidden_units = input_dim, num_actions, hidden_units
+        self.actor_sees_input = actor_sees_input
         self.encoder = nn.Sequential(layer_init(nn.Linear(input_dim, hidden_units)), nn.Tanh())
         self.gru = nn.GRU(hidden_units, hidden_units)
         for name, param in self.gru.named_parameters():
@@ -68,7 +74,14 @@ class RecurrentActorCritic(nn.Module):
                 nn.init.constant_(param, 0)
             else:
                 nn.init.orthogonal_(param, 1.0)
-        self.actor = layer_init(nn.Linear(hidden_units, num_actions), std=0.01)
+        if actor_sees_input:
+            self.actor = nn.Sequential(
+                layer_init(nn.Linear(2 * hidden_units, hidden_units)),
+                nn.Tanh(),
+                layer_init(nn.Linear(hidden_units, num_actions), std=0.01),
+            )
+        else:
+            self.actor = layer_init(nn.Linear(hidden_units, num_actions), std=0.01)
         self.critic = nn.Sequential(
             layer_init(nn.Linear(hidden_units, hidden_units)),
             nn.Tanh(),
@@ -90,6 +103,10 @@ class RecurrentActorCritic(nn.Module):
             outputs.append(out)
         return torch.cat(outputs), state
 
+    def policy(self, hidden: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Logits (T, N, actions) from the GRU's outputs (T, N, hidden) and the inputs x (T, N, input_dim)."""
+        return self.actor(torch.cat([hidden, self.encoder(x)], -1) if self.actor_sees_input else hidden)
+
     def value(self, hidden: torch.Tensor) -> torch.Tensor:
         """The critic on the GRU's output held fixed: the value's error (returns reach ~20, the policy's
         gradients are small) would otherwise swamp the policy's gradient through the shared GRU."""
@@ -98,7 +115,7 @@ class RecurrentActorCritic(nn.Module):
     def forward(self, x: torch.Tensor, state: torch.Tensor, starts: torch.Tensor):
         """Logits (T, N, actions), values (T, N) and the state after the sequence."""
         hidden, state = self.memory(x, state, starts)
-        return self.actor(hidden), self.value(hidden), state
+        return self.policy(hidden, x), self.value(hidden), state
 
 
 def save_agent(path: str, agent: RecurrentActorCritic, args) -> None:
@@ -108,6 +125,7 @@ def save_agent(path: str, agent: RecurrentActorCritic, args) -> None:
         "input_dim": agent.input_dim,
         "hidden_units": agent.hidden_units,
         "num_actions": agent.num_actions,
+        "actor_sees_input": agent.actor_sees_input,
     }
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     torch.save({"state_dict": agent.state_dict(), "config": config}, path)
@@ -123,6 +141,8 @@ def load_agent(path: str) -> tuple[RecurrentActorCritic, dict]:
     config = checkpoint["config"]
     if "input_dim" not in config:
         raise ValueError(f"{path!r} is not a memory agent checkpoint (no input_dim in its config)")
-    agent = RecurrentActorCritic(config["input_dim"], config["num_actions"], config["hidden_units"])
+    agent = RecurrentActorCritic(
+        config["input_dim"], config["num_actions"], config["hidden_units"], config.get("actor_sees_input", False)
+    )
     agent.load_state_dict(checkpoint["state_dict"])
     return agent.eval(), config

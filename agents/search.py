@@ -119,6 +119,9 @@ class Args:
     """gradient clipping"""
     hidden_units: int = 64
     """units of the encoder and the GRU"""
+    actor_sees_input: bool = False
+    """the policy is a hidden layer on the GRU's output and the current step's encoding (a linear head on the
+    GRU's output otherwise): the teacher's stay, a decision on the current box, need not hang on the memory"""
     shaping: str = "log_fraction_centred"
     """the learner's reward (agents.dqn.LearnerReward): the potential Φ (none, fraction, log_fraction,
     log_fraction_centred)"""
@@ -482,7 +485,8 @@ def dagger(agent: RecurrentActorCritic, collector: Collector, teacher, args: Arg
                 xs = torch.stack([kept_x[k] for k in chosen], 1)  # (T, B, input_dim)
                 labels = torch.stack([kept_labels[k] for k in chosen], 1)
                 hidden, _ = agent.memory(xs, agent.initial_state(len(chosen)), torch.zeros(xs.shape[:2]))
-                loss = imitation_loss(agent.actor(hidden).flatten(0, 1), labels.flatten(), args.dagger_focal_gamma)
+                logits = agent.policy(hidden, xs).flatten(0, 1)
+                loss = imitation_loss(logits, labels.flatten(), args.dagger_focal_gamma)
                 optimizer.zero_grad()
                 loss.backward()
                 nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
@@ -534,7 +538,7 @@ def imitate_teacher(agent: RecurrentActorCritic, collector: Collector, teacher, 
     losses = []
     for _ in range(args.demo_epochs):
         hidden, _ = agent.memory(x, agent.initial_state(x.shape[1]), starts)
-        policy_loss = F.cross_entropy(agent.actor(hidden).flatten(0, 1), actions.flatten())
+        policy_loss = F.cross_entropy(agent.policy(hidden, x).flatten(0, 1), actions.flatten())
         value_loss = 0.5 * (agent.value(hidden) - returns).pow(2).mean()
         optimizer.zero_grad()
         (policy_loss + value_loss).backward()
@@ -557,7 +561,9 @@ def train(args: Args, progress: bool = True) -> dict:
     n, steps = args.num_envs, args.num_steps
     env = make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)
-    agent = RecurrentActorCritic(input_dim(actions, args.env.with_mask_stats), actions, args.hidden_units)
+    agent = RecurrentActorCritic(
+        input_dim(actions, args.env.with_mask_stats), actions, args.hidden_units, args.actor_sees_input
+    )
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
     collector = Collector(env, args, writer)
     rollout = Rollout.empty(steps, n, agent.input_dim)
