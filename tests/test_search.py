@@ -28,7 +28,13 @@ from mani_active_vision.agents.policies import (
     policy_kwargs,
 )
 from mani_active_vision.agents.q_network import checkpoint_env_config, load_q_network
-from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim
+from mani_active_vision.agents.recurrent_network import (
+    RecurrentActorCritic,
+    features,
+    input_dim,
+    load_agent,
+    save_agent,
+)
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 
@@ -48,6 +54,24 @@ def test_the_gru_state_is_zeroed_where_an_episode_starts():
     carried, _ = agent.memory(x[4:, 1:], hidden[3:4, 1:], torch.zeros(3, 1))  # a 1-layer GRU: output = state
     torch.testing.assert_close(hidden[4:, 1:], carried)  # env 1 carries its state across the same steps
     assert not torch.allclose(hidden[4:, 1:], agent.memory(x[4:, 1:], agent.initial_state(1), torch.zeros(3, 1))[0])
+
+
+def test_an_actor_that_sees_the_input_is_saved_and_loaded_as_such(tmp_path):
+    torch.manual_seed(0)
+    agent = RecurrentActorCritic(input_dim(7), 7, hidden_units=16, actor_sees_input=True)
+    x, starts = torch.randn(3, 2, agent.input_dim), torch.zeros(3, 2)
+    hidden, _ = agent.memory(x, agent.initial_state(2), starts)
+    other = x.clone()
+    other[-1] += (
+        1.0  # the last step's input alone changes: the GRU's output there changes, and so does the head's input
+    )
+    assert not torch.allclose(agent.policy(hidden, x)[-1], agent.policy(hidden, other)[-1])
+    save_agent(str(tmp_path / "agent.pt"), agent, search.Args())
+    loaded, config = load_agent(str(tmp_path / "agent.pt"))
+    assert config["actor_sees_input"] and loaded.actor_sees_input
+    torch.testing.assert_close(
+        loaded(x, agent.initial_state(2), starts)[0], agent(x, agent.initial_state(2), starts)[0]
+    )
 
 
 def test_gae_does_not_bootstrap_across_an_episode_end():
