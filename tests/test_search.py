@@ -62,9 +62,7 @@ def test_an_actor_that_sees_the_input_is_saved_and_loaded_as_such(tmp_path):
     x, starts = torch.randn(3, 2, agent.input_dim), torch.zeros(3, 2)
     hidden, _ = agent.memory(x, agent.initial_state(2), starts)
     other = x.clone()
-    other[-1] += (
-        1.0  # the last step's input alone changes: the GRU's output there changes, and so does the head's input
-    )
+    other[-1] += 1.0  # the same GRU outputs, another input at the last step: only the head reads it
     assert not torch.allclose(agent.policy(hidden, x)[-1], agent.policy(hidden, other)[-1])
     save_agent(str(tmp_path / "agent.pt"), agent, search.Args())
     loaded, config = load_agent(str(tmp_path / "agent.pt"))
