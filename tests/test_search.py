@@ -349,3 +349,17 @@ def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, baseline_scri
     trial = results["memory/push2"]["trials"][0]
     assert set(trial) == {"focused", "visible_after_push", "recovered", "steps_to_recover"}
     assert trial["recovered"] <= trial["focused"]  # recovery is asked only of a focused agent
+
+
+def test_teacher_agreement_asks_the_teacher_on_the_agents_own_steps(tmp_path, baseline_script):
+    agreement = baseline_script("teacher_agreement")
+    shipped = os.path.join(ROOT, "agents", "weights", "search.pt")
+    env = checkpoint_env_config(shipped).replace(max_episode_steps=6)
+    result = agreement.main(agreement.Args(env=env, checkpoint=shipped, episodes=1))
+    assert result["steps"] == 6 and 0 <= result["agree"] <= 1 and 0 <= result["teacher_stays"] <= 6
+    # the first steps are the exploration's sweep, which the agent learnt: they agree there
+    assert result["agree_where_teacher_moves"] > 0
+    ppo = tmp_path / "ppo.pt"
+    save_agent(str(ppo), RecurrentActorCritic(input_dim(7, with_mask_stats=True), 7, 8), search.Args(algo="ppo"))
+    with pytest.raises(ValueError, match="algo='ppo': it has no teacher to ask"):
+        agreement.main(agreement.Args(env=env, checkpoint=str(ppo), episodes=1))
