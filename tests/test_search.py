@@ -320,6 +320,7 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
     assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn.pt"
+    assert config["dagger_focal_gamma"] == 2.0 and config["actor_sees_input"]  # scripts/make_search.sh's recipe
     assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True).on_fcn_box(
         DQN_FCN_THRESHOLDS
     )  # it learnt on the box it acts on, with the verifier's bars of its teacher, the shipped DQN
