@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
 from mani_active_vision.agents.verifier import candidate_crops, target_crops
-from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou
+from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou, target_stats
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS
 from mani_active_vision.evaluation.rollout_frames import RELATIONS
 from mani_active_vision.segmentation_data import load_segmentation_data
@@ -46,6 +46,7 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
     for start in tqdm(range(0, len(data["scene"]), batch), desc="regions", leave=False):
         scene_rgb, target_rgb = data["scene"][start : start + batch], data["target"][start : start + batch]
         masks = network.predict(scene_rgb, target_rgb, runtime="torch").numpy()
+        cut = target_stats(torch.from_numpy(data["mask"][start : start + batch]))["touches_border"].tolist()
         scene, target = normalize_images(torch.from_numpy(scene_rgb)), normalize_images(torch.from_numpy(target_rgb))
         found = candidate_crops(scene, masks, model.config.verifier_regions, crop)
         if not len(found["image"]):
@@ -57,8 +58,6 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
         for i, (labels, ids) in enumerate(zip(found["labels"], found["ids"])):
             objects, relations = data["objects"][start + i], data["relations"][start + i]
             picture = silhouette(pixels[i].numpy())
-            truth = data["mask"][start + i]
-            cut = bool(truth[0].any() or truth[-1].any() or truth[:, 0].any() or truth[:, -1].any())
             for k in ids:
                 region = labels == k
                 on = int(np.bincount(objects[region], minlength=256).argmax())
@@ -66,7 +65,7 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
                 rows["size"].append(int(region.sum()))
                 rows["kind"].append(kind)
                 rows["silhouette"].append(silhouette_iou(silhouette(region), picture))
-                rows["cut"].append(cut)
+                rows["cut"].append(cut[i])
     return {k: np.array(v) for k, v in rows.items()}
 
 
