@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import cached_task
+from conftest import ROOT, cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
@@ -35,8 +35,6 @@ from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
 from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _box_env(**kwargs):

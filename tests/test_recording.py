@@ -14,15 +14,13 @@ import numpy as np
 import pytest
 import rerun as rr
 import rerun.chunk
-from conftest import cached_task
+from conftest import ROOT, cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
 from mani_active_vision.recording import RerunRecorder, RerunVectorRecorder, blueprint
 from mani_active_vision.recording.screenshots import screenshots
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 @pytest.fixture(autouse=True)

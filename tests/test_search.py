@@ -149,9 +149,7 @@ def test_a_short_training_run_on_workers_saves_an_agent_that_acts(tmp_path):
     assert 0 <= episode["final_target_fraction"] <= 1 and policy.last_action[0] in range(6)
 
 
-DQN_WEIGHTS = os.path.join(
-    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", "weights", "dqn_hold_demo_wide.pt"
-)
+DQN_WEIGHTS = os.path.join(ROOT, "agents", "weights", "dqn_hold_demo_wide.pt")
 
 
 def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
@@ -315,7 +313,7 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
 
 
 def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
-    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", "weights", "search.pt")
+    path = os.path.join(ROOT, "agents", "weights", "search.pt")
     config = torch.load(path, weights_only=True)["config"]
     deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
