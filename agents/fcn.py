@@ -44,6 +44,7 @@ import torch.nn.functional as F
 from mani_active_vision.agents import fcn_runtime
 from mani_active_vision.agents.verifier import (
     CandidateVerifier,
+    at_border,
     candidate_crops,
     keep_verified,
     near_previous,
@@ -99,6 +100,14 @@ class FCNConfig:
     """verifier probability a region needs to be kept"""
     verifier_regions: int = 4
     """the largest this many regions of a mask are verified; the rest are dropped"""
+    verifier_cut_share: float = 0.0
+    """0: off; > 0: a region that touches the image's border and covers at least this share of the image needs
+    only `verifier_cut_threshold` (when that is lower than its bar). Cut by the border, the target loses the
+    outline the verifier tells it by, and is turned away at every size, while on rollout frames hardly any other
+    region that large and cut reaches 0.1 (docs/vision.md). Whole regions keep the bar: a look-alike seen whole
+    up close is what approaching it reveals"""
+    verifier_cut_threshold: float = 0.3
+    """verifier probability a region cut by the border of `verifier_cut_share` or more needs"""
 
     def __post_init__(self):
         if self.target_pooling not in TARGET_POOLINGS:
@@ -107,6 +116,11 @@ class FCNConfig:
             raise ValueError(
                 f"verifier_crop={self.verifier_crop} must be 0 or a positive multiple of 8 and "
                 f"verifier_threshold={self.verifier_threshold} in (0, 1)"
+            )
+        if not 0 <= self.verifier_cut_share < 1 or not 0 < self.verifier_cut_threshold < 1:
+            raise ValueError(
+                f"verifier_cut_share={self.verifier_cut_share} must be in [0, 1) and "
+                f"verifier_cut_threshold={self.verifier_cut_threshold} in (0, 1)"
             )
         if self.shape_kernel < 0 or not 0 < self.presence_threshold < 1:
             raise ValueError(
@@ -410,6 +424,13 @@ class OneShotFCN(nn.Module):
         threshold = torch.full_like(logits, acquire)
         if previous is not None:
             threshold[near_previous(candidates["boxes"], candidates["image"], previous.to(logits.device))] = track
+        if self.config.verifier_cut_share:
+            cut = at_border(candidates["boxes"], mask.shape[1:]) & (
+                candidates["sizes"] >= self.config.verifier_cut_share * mask[0].numel()
+            )
+            threshold[cut.to(logits.device)] = threshold[cut.to(logits.device)].clamp(
+                max=self.config.verifier_cut_threshold
+            )
         mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 

@@ -119,21 +119,31 @@ def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, cr
 
     scene (N, 3, H, W) normalised images, masks (N, H, W) bool candidate masks. Returns dict(scene_crops
     (M, 3, crop, crop), image (M,) the image each region is in, labels [(H, W) int per image], ids [region
-    labels per image, largest first], boxes (M, 4) the regions' pixel boxes)."""
-    labels, ids, boxes, image = [], [], [], []
+    labels per image, largest first], boxes (M, 4) the regions' pixel boxes, sizes (M,) their pixel counts)."""
+    labels, ids, boxes, image, sizes = [], [], [], [], []
     for i, mask in enumerate(masks):
         image_labels, image_ids = regions(mask, max_regions)
         labels.append(image_labels)
         ids.append(image_ids)
         boxes.append(region_boxes(image_labels, image_ids))
         image += [i] * len(image_ids)
+        if image_ids:
+            sizes += np.bincount(image_labels.ravel())[image_ids].tolist()
     image = torch.tensor(image, dtype=torch.long)
     boxes = torch.cat(boxes).to(scene.device)
     if len(image):
         scene_crops = square_crops(scene[image], boxes, crop)
     else:  # no region anywhere (~40% of an episode's frames): no sampling to set up
         scene_crops = scene.new_zeros((0, scene.shape[1], crop, crop))
-    return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids, boxes=boxes)
+    sizes = torch.tensor(sizes, dtype=torch.long)
+    return dict(scene_crops=scene_crops, image=image, labels=labels, ids=ids, boxes=boxes, sizes=sizes)
+
+
+def at_border(boxes: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """(M,) bool: whether each pixel box (M, 4) (x0, y0, x1, y1; the stops exclusive) touches the border of an
+    image of `shape` (H, W): a region cut by the border, or lying along it."""
+    height, width = shape
+    return (boxes[:, 0] <= 0) | (boxes[:, 1] <= 0) | (boxes[:, 2] >= width) | (boxes[:, 3] >= height)
 
 
 def near_previous(boxes: torch.Tensor, image: torch.Tensor, previous: torch.Tensor, grow: float = TRACK_GROW):

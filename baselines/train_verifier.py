@@ -63,6 +63,11 @@ class Args:
     """the verifier threshold saved with the weights (0: the one with the best validation accuracy). The epoch
     is chosen by validation accuracy either way; a fixed bar is for control, which needs few false positives
     more than the best accuracy (docs/vision.md)"""
+    cut_share: float = 0.0
+    """saved as `FCNConfig.verifier_cut_share`: a region cut by the image's border and at least this share of the
+    image needs only `cut_threshold` (0: off)"""
+    cut_threshold: float = 0.3
+    """saved as `FCNConfig.verifier_cut_threshold`"""
     rotate: float = 0.0
     """degrees: both crops of a pair also turned by one random angle up to this (0: not turned)"""
     epochs: int = 12
@@ -207,7 +212,13 @@ def main(args: Args):
         f"({labels[val_idx].mean():.2f} target)"
     )
 
-    config = dataclasses.replace(fcn.config, verifier_crop=args.crop, verifier_regions=args.regions)
+    config = dataclasses.replace(
+        fcn.config,
+        verifier_crop=args.crop,
+        verifier_regions=args.regions,
+        verifier_cut_share=args.cut_share,
+        verifier_cut_threshold=args.cut_threshold,
+    )
     model = OneShotFCN(config)
     model.load_state_dict(fcn.state_dict(), strict=False)
     verifier = model.verifier

@@ -3,8 +3,9 @@
 network (its `verifier_regions` largest) is scored by the verifier, and, for comparison, by the silhouette
 IoU of the region against the target image's (`boxes.silhouette`: outline alone). ROC AUC of the target's
 regions against same-colour look-alikes' and against every other region, by the region's size; and the share
-of the target's regions the verifier turns away at a bar (`--bar`, the deployed track bar by default), apart
-for targets cut by the image's border and whole ones.
+of the target's regions the verifier turns away at a bar (`--bar`, the deployed track bar by default; the
+checkpoint's lower bar for large regions cut by the border where it has one), apart for targets cut by the
+image's border and whole ones, and the share of other regions it accepts.
 
     python baselines/verifier_auc.py --weights agents/weights/fcn.pt --data-dir data/rollout128/test_unseen
 """
@@ -19,7 +20,7 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
-from mani_active_vision.agents.verifier import candidate_crops, target_crops
+from mani_active_vision.agents.verifier import at_border, candidate_crops, target_crops
 from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou, target_stats
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS
 from mani_active_vision.evaluation.rollout_frames import RELATIONS
@@ -41,8 +42,10 @@ class Args:
 @torch.inference_mode()
 def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int = 64) -> dict[str, np.ndarray]:
     """Per candidate region of `network`: size, what it lies on ("target" or a relation, "floor or robot"),
-    `model`'s verifier probability, silhouette IoU, whether the frame's target touches the image's border."""
-    crop, rows = model.config.verifier_crop, dict(size=[], kind=[], probability=[], silhouette=[], cut=[])
+    `model`'s verifier probability, silhouette IoU, whether the frame's target touches the image's border, and
+    whether the region does (`verifier.at_border`)."""
+    crop = model.config.verifier_crop
+    rows = dict(size=[], kind=[], probability=[], silhouette=[], cut=[], at_border=[])
     for start in tqdm(range(0, len(data["scene"]), batch), desc="regions", leave=False):
         scene_rgb, target_rgb = data["scene"][start : start + batch], data["target"][start : start + batch]
         masks = network.predict(scene_rgb, target_rgb, runtime="torch").numpy()
@@ -55,6 +58,7 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
         encoded = model.verifier.encoder(target_crops(target, pixels, crop))
         probability = model.verifier.score(encoded[found["image"]], model.verifier.encoder(found["scene_crops"]))
         rows["probability"] += probability.sigmoid().tolist()
+        rows["at_border"] += at_border(found["boxes"], masks.shape[1:]).tolist()
         for i, (labels, ids) in enumerate(zip(found["labels"], found["ids"])):
             objects, relations = data["objects"][start + i], data["relations"][start + i]
             picture = silhouette(pixels[i].numpy())
@@ -74,13 +78,15 @@ def main(args: Args):
     model, _ = load_checkpoint(args.weights)
     if not model.config.verifier_crop:
         raise ValueError(f"{args.weights} has no verifier (verifier_crop=0)")
-    rows = region_scores(model.eval(), model.network_alone(), load_segmentation_data(args.data_dir))
+    data = load_segmentation_data(args.data_dir)
+    rows = region_scores(model.eval(), model.network_alone(), data)
+    bar = region_bars(rows, args.bar, model.config, data["scene"][0].shape[0] * data["scene"][0].shape[1])
     print(f"{len(rows['size'])} candidate regions on {args.data_dir}, {args.weights}")
     print(
         "| region px | target | same colour | others | AUC vs same colour: verifier | silhouette | AUC vs all: verifier "
-        f"| target under {args.bar}: whole | cut by the border |"
+        f"| target under the bar ({args.bar}): whole | cut by the border | others over it |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for low, high in zip(SIZE_BINS[:-1], SIZE_BINS[1:]):
         sized = (rows["size"] >= low) & (rows["size"] < high)
         target, same_colour = sized & (rows["kind"] == "target"), sized & (rows["kind"] == "same colour")
@@ -90,21 +96,30 @@ def main(args: Args):
             roc_auc(rows["silhouette"][target], rows["silhouette"][same_colour]),
             roc_auc(rows["probability"][target], rows["probability"][others]),
         ]
-        turned_away = [
-            turned_away_share(rows["probability"][target & (rows["cut"] == cut)], args.bar) for cut in (False, True)
-        ]
+        under = rows["probability"] < bar
+        shares = [share(under[target & (rows["cut"] == cut)]) for cut in (False, True)] + [share(~under[others])]
         print(
             f"| {low}–{high if high < 10**9 else '∞'} | {target.sum()} | {same_colour.sum()} | {others.sum()} | "
             + " | ".join(f"{c:.3f}" for c in cells)
             + " | "
-            + " | ".join(turned_away)
+            + " | ".join(shares)
             + " |"
         )
 
 
-def turned_away_share(probability: np.ndarray, bar: float) -> str:
-    """The share of `probability` under `bar` and the count, "0.42 (252)"; "–" without regions."""
-    return f"{(probability < bar).mean():.2f} ({len(probability)})" if len(probability) else "–"
+def region_bars(rows: dict, bar: float, config, pixels: int) -> np.ndarray:
+    """Each region's bar: `bar`, or the checkpoint's lower `verifier_cut_threshold` for a region cut by the
+    image's border and at least `verifier_cut_share` of its `pixels` (as `OneShotFCN.verify` applies it)."""
+    bars = np.full(len(rows["size"]), bar)
+    if config.verifier_cut_share:
+        cut = rows["at_border"] & (rows["size"] >= config.verifier_cut_share * pixels)
+        bars[cut] = np.minimum(bars[cut], config.verifier_cut_threshold)
+    return bars
+
+
+def share(flags: np.ndarray) -> str:
+    """The share of true `flags` and their count, "0.42 (252)"; "–" without any."""
+    return f"{flags.mean():.2f} ({len(flags)})" if len(flags) else "–"
 
 
 if __name__ == "__main__":

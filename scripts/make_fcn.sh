@@ -26,9 +26,10 @@ collect() {
 }
 collect a 500000 & FIRST=$!; collect b 600000 & wait $FIRST; wait $!
 collect c 700000 & FIRST=$!; collect d 800000 & wait $FIRST; wait $!
-# the verifier: pairs also turned together (up to 45°), saved with the bar control needs (0.9)
+# the verifier: pairs also turned together (up to 45°), saved with the bar control needs (0.9) and a bar of 0.3
+# for regions cut by the image's border that cover at least 2.5% of it
 $PY baselines/train_verifier.py --fcn runs/fcn/best.pt --data-dirs $ROLLOUT/train_a $ROLLOUT/train_b \
-  $ROLLOUT/train_c $ROLLOUT/train_d --rotate 45 --threshold 0.9 --run-dir runs/verifier
+  $ROLLOUT/train_c $ROLLOUT/train_d --rotate 45 --threshold 0.9 --cut-share 0.025 --cut-threshold 0.3 --run-dir runs/verifier
 cp runs/verifier/best.pt agents/weights/fcn.pt
 [ -f $ROLLOUT/test_unseen/manifest.json ] || $PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/test_unseen
 $PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $DATA/test_train $DATA/test_unseen --largest-component

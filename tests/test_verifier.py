@@ -1,11 +1,14 @@
 """The FCN's second stage: crops around candidate regions, which regions it keeps, and its checkpoint."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
-from mani_active_vision.agents.fcn import FCNConfig, OneShotFCN, load_checkpoint, save_checkpoint
+from mani_active_vision.agents.fcn import FCNConfig, OneShotFCN, load_checkpoint, normalize_images, save_checkpoint
 from mani_active_vision.agents.verifier import (
+    at_border,
     candidate_crops,
     keep_verified,
     mask_box,
@@ -132,3 +135,34 @@ def test_predict_tracks_a_region_whose_score_dips_under_the_threshold():
     )  # a lower bar to acquire, no previous mask
     with pytest.raises(ValueError, match=r"thresholds=\(0.5, 1.2\) must be \(acquire, track\)"):
         model.predict_with_presence(scene, target, previous=kept, thresholds=(0.5, 1.2))
+
+
+def test_a_large_region_cut_by_the_border_needs_only_the_cut_bar():
+    torch.manual_seed(0)
+    config = FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.9, verifier_cut_share=0.05)
+    scene = torch.from_numpy(np.random.default_rng(0).integers(0, 256, (1, 64, 64, 3), dtype=np.uint8))
+    target = np.full((1, 64, 64, 3), 128, np.uint8)
+    target[:, 20:40, 24:44] = 200
+    target = normalize_images(torch.from_numpy(target))
+
+    def kept(model, rows, cols):
+        mask = torch.zeros(1, 64, 64, dtype=torch.bool)
+        mask[0, rows, cols] = True
+        with torch.inference_mode():
+            return bool(model.verify(scene, target, mask, model._weights_key(), best_only=True)[0].any())
+
+    for cut_threshold, accepted in ((0.4, True), (0.6, False)):  # the verifier scores every region 0.5
+        model = OneShotFCN(dataclasses.replace(config, verifier_cut_threshold=cut_threshold)).eval()
+        with torch.no_grad():
+            model.verifier.head[-1].weight.zero_()
+            model.verifier.head[-1].bias.zero_()
+        assert kept(model, slice(0, 20), slice(30, 50)) is accepted  # 400 px (0.10 of the image), at the top
+        assert not kept(model, slice(20, 40), slice(20, 40))  # as large, whole: the bar
+        assert not kept(model, slice(0, 8), slice(0, 8))  # cut, but 0.016 of the image: the bar
+    assert at_border(torch.tensor([[0.0, 5, 10, 10], [3, 3, 64, 10], [3, 3, 63, 63]]), (64, 64)).tolist() == [
+        True,
+        True,
+        False,
+    ]
+    with pytest.raises(ValueError, match="verifier_cut_share=1.5 must be in"):
+        FCNConfig(verifier_cut_share=1.5)
