@@ -22,9 +22,10 @@ def markdown_table(rows: dict[str, dict]) -> str:
     lines = [header, "|" + "---|" * 10]
     for name, s in rows.items():
         cell = functools.partial(_cell, s)
+        spl = "–" if math.isnan(s["spl"]) else f"{s['spl']:.2f}"  # no reference run: no SPL
         lines.append(
             f"| {name} | {s['episodes']} | {s['success']:.2f} | {s['success_final']:.2f} | {cell('focus_held')} | "
-            f"{cell('steps_to_see', '{:.1f}')} | {cell('steps_to_success', '{:.1f}')} | {s['spl']:.2f} | "
+            f"{cell('steps_to_see', '{:.1f}')} | {cell('steps_to_success', '{:.1f}')} | {spl} | "
             f"{cell('final_target_fraction', '{:.3f}')} | {cell('return')} |"
         )
     return "\n".join(lines)
