@@ -237,6 +237,23 @@ def test_a_ground_truth_box_teacher_sees_the_segmentations_box_and_the_learners_
     assert learner_obs[0, 0] == 0.5  # the learner's own observation is left as it was
 
 
+def test_a_teacher_shown_the_ground_truth_in_success_only_holds_on_its_box_and_mask_stats():
+    seen = []
+    stub = types.SimpleNamespace(act=lambda obs, info, starts: seen.append(obs) or np.zeros(2, np.int64))
+    teacher = search.GroundTruthBoxTeacher(stub, in_success_only=True, with_mask_stats=True)
+    learner_obs = np.array([[0.4, 0.4, 0.2, 0.2, 0.05, 0.01, 0.0], [0.1, 0.1, 0.1, 0.1, 0.01, -0.3, -0.3]])
+    info = {
+        "success": np.array([True, False]),
+        "target_bbox": np.array([[0.35, 0.3, 0.3, 0.3], [0.5, 0.5, 0.1, 0.1]]),
+        "target_fraction": np.array([0.07, 0.01]),
+    }
+    teacher.act(learner_obs, info, np.array([False, False]))
+    np.testing.assert_allclose(seen[0][0], [0.35, 0.3, 0.3, 0.3, 0.07, 0.0, -0.05], atol=1e-6)  # in success
+    np.testing.assert_allclose(seen[0][1], learner_obs[1])  # not in success: the learner's own state
+    with pytest.raises(ValueError, match="teacher_box='truth' is not one of"):
+        search.check(dataclasses.replace(search.Args(), teacher_box="truth"))
+
+
 def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
     args = search.Args(
         env=SHORT,
