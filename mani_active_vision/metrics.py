@@ -12,7 +12,7 @@ Metrics of one episode (`episode_metrics`), steps counted in actions taken:
 - `spl`: success weighted by path length over steps, S * L / max(P, L), with P = `steps_to_success` and
   L the reference shortest step count: the fewer of the agent's own steps and those of a privileged
   servo on the same seed (`evaluation.reference`). So SPL = 1 means "as short as the best path we know of";
-  NaN without a reference (`reference_steps` NaN: the reference not run);
+  NaN without a reference run;
 - `final_target_fraction`: the target's share of the image at the last step; `return`: the sum of rewards.
 NaN marks "does not exist" in memory; JSON files hold `null` there (`json_io`).
 """
@@ -79,13 +79,14 @@ def focus_held(success: list) -> float:
     return sum(held) / len(held)
 
 
-def episode_metrics(trajectory: Trajectory, reference_steps: float = math.nan) -> dict:
-    """The metrics of one episode (see the module docstring); `reference_steps` NaN = no reference."""
+def episode_metrics(trajectory: Trajectory, reference_steps: float | None = None) -> dict:
+    """The metrics of one episode (see the module docstring); `reference_steps` None = no reference run (SPL
+    NaN), NaN = the reference ran and did not succeed (the agent's own steps are the shortest known)."""
     steps_to_success = first_index(trajectory.success)
     success = not math.isnan(steps_to_success)
-    spl = math.nan if math.isnan(reference_steps) else 0.0  # without a reference there is no SPL
-    if success and not math.isnan(reference_steps):
-        shortest = min(reference_steps, steps_to_success)
+    spl = math.nan if reference_steps is None else 0.0
+    if success and reference_steps is not None:
+        shortest = steps_to_success if math.isnan(reference_steps) else min(reference_steps, steps_to_success)
         spl = shortest / max(steps_to_success, shortest, 1.0) if steps_to_success > 0 else 1.0
     return {
         "success": float(success),

@@ -170,6 +170,7 @@ def test_metrics_on_hand_made_trajectories():
     }
     assert episode_metrics(t, reference_steps=7)["spl"] == 1.0  # the agent's path is the shortest known
     assert math.isnan(episode_metrics(t)["spl"])  # no reference run: no SPL
+    assert episode_metrics(t, reference_steps=math.nan)["spl"] == 1.0  # the reference failed: its own steps
     never = episode_metrics(_trajectory([1, 1], [0, 0], [0.01, 0.02], [0.02]), reference_steps=2)
     assert (
         never["success"] == 0

@@ -3,8 +3,6 @@ each episode (`mani_active_vision.metrics`) with SPL measured against the privil
 
 from __future__ import annotations
 
-import math
-
 from tqdm import tqdm
 
 from mani_active_vision.evaluation.reference import reference_steps
@@ -41,7 +39,7 @@ def evaluate(
                     raise KeyError(f"references has no steps for seed {seed}; it has seeds {sorted(references)}")
                 reference = references[int(seed)]
             else:
-                reference = reference_steps(env, seed) if with_reference else math.nan
+                reference = reference_steps(env, seed) if with_reference else None
             metrics = episode_metrics(run_episode(env, policy, seed), reference)
             episodes.append({"seed": int(seed), "reference_steps": reference, **metrics})
     return episodes
