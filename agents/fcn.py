@@ -44,8 +44,8 @@ import torch.nn.functional as F
 from mani_active_vision.agents import fcn_runtime
 from mani_active_vision.agents.verifier import (
     CandidateVerifier,
-    at_border,
     candidate_crops,
+    cut_regions,
     keep_verified,
     near_previous,
     target_crops,
@@ -425,12 +425,8 @@ class OneShotFCN(nn.Module):
         if previous is not None:
             threshold[near_previous(candidates["boxes"], candidates["image"], previous.to(logits.device))] = track
         if self.config.verifier_cut_share:
-            cut = at_border(candidates["boxes"], mask.shape[1:]) & (
-                candidates["sizes"] >= self.config.verifier_cut_share * mask[0].numel()
-            )
-            threshold[cut.to(logits.device)] = threshold[cut.to(logits.device)].clamp(
-                max=self.config.verifier_cut_threshold
-            )
+            cut = cut_regions(candidates, mask.shape[1:], self.config.verifier_cut_share).to(logits.device)
+            threshold[cut] = threshold[cut].clamp(max=self.config.verifier_cut_threshold)
         mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 

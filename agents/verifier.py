@@ -146,6 +146,14 @@ def at_border(boxes: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
     return (boxes[:, 0] <= 0) | (boxes[:, 1] <= 0) | (boxes[:, 2] >= width) | (boxes[:, 3] >= height)
 
 
+def cut_regions(candidates: dict, shape: tuple[int, int], share: float) -> torch.Tensor:
+    """(M,) bool: which of `candidate_crops`' regions touch the border of their (H, W) image and cover at least
+    `share` of it: the large regions cut by the border (`FCNConfig.verifier_cut_share`)."""
+    return at_border(candidates["boxes"], shape) & (
+        candidates["sizes"].to(candidates["boxes"].device) >= share * shape[0] * shape[1]
+    )
+
+
 def near_previous(boxes: torch.Tensor, image: torch.Tensor, previous: torch.Tensor, grow: float = TRACK_GROW):
     """(M,) bool: whether each candidate's pixel box (M, 4) meets the box of the region kept in its image at
     the previous step, grown by `grow` × its size on every side; `previous` (N, H, W) bool masks, empty

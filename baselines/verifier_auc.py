@@ -20,7 +20,7 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
-from mani_active_vision.agents.verifier import at_border, candidate_crops, target_crops
+from mani_active_vision.agents.verifier import candidate_crops, cut_regions, target_crops
 from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou, target_stats
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS
 from mani_active_vision.evaluation.rollout_frames import RELATIONS
@@ -43,9 +43,9 @@ class Args:
 def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int = 64) -> dict[str, np.ndarray]:
     """Per candidate region of `network`: size, what it lies on ("target" or a relation, "floor or robot"),
     `model`'s verifier probability, silhouette IoU, whether the frame's target touches the image's border, and
-    whether the region does (`verifier.at_border`)."""
-    crop = model.config.verifier_crop
-    rows = dict(size=[], kind=[], probability=[], silhouette=[], cut=[], at_border=[])
+    whether the region is large and cut by it, so that `model` asks only its cut bar (`verifier.cut_regions`)."""
+    crop, cut_share = model.config.verifier_crop, model.config.verifier_cut_share
+    rows = dict(size=[], kind=[], probability=[], silhouette=[], cut=[], cut_region=[])
     for start in tqdm(range(0, len(data["scene"]), batch), desc="regions", leave=False):
         scene_rgb, target_rgb = data["scene"][start : start + batch], data["target"][start : start + batch]
         masks = network.predict(scene_rgb, target_rgb, runtime="torch").numpy()
@@ -58,7 +58,11 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
         encoded = model.verifier.encoder(target_crops(target, pixels, crop))
         probability = model.verifier.score(encoded[found["image"]], model.verifier.encoder(found["scene_crops"]))
         rows["probability"] += probability.sigmoid().tolist()
-        rows["at_border"] += at_border(found["boxes"], masks.shape[1:]).tolist()
+        rows["cut_region"] += (
+            cut_regions(found, masks.shape[1:], cut_share)
+            if cut_share
+            else torch.zeros(len(found["image"]), dtype=bool)
+        ).tolist()
         for i, (labels, ids) in enumerate(zip(found["labels"], found["ids"])):
             objects, relations = data["objects"][start + i], data["relations"][start + i]
             picture = silhouette(pixels[i].numpy())
@@ -78,9 +82,8 @@ def main(args: Args):
     model, _ = load_checkpoint(args.weights)
     if not model.config.verifier_crop:
         raise ValueError(f"{args.weights} has no verifier (verifier_crop=0)")
-    data = load_segmentation_data(args.data_dir)
-    rows = region_scores(model.eval(), model.network_alone(), data)
-    bar = region_bars(rows, args.bar, model.config, data["scene"][0].shape[0] * data["scene"][0].shape[1])
+    rows = region_scores(model.eval(), model.network_alone(), load_segmentation_data(args.data_dir))
+    bar = np.where(rows["cut_region"], min(args.bar, model.config.verifier_cut_threshold), args.bar)
     print(f"{len(rows['size'])} candidate regions on {args.data_dir}, {args.weights}")
     print(
         "| region px | target | same colour | others | AUC vs same colour: verifier | silhouette | AUC vs all: verifier "
@@ -105,16 +108,6 @@ def main(args: Args):
             + " | ".join(shares)
             + " |"
         )
-
-
-def region_bars(rows: dict, bar: float, config, pixels: int) -> np.ndarray:
-    """Each region's bar: `bar`, or the checkpoint's lower `verifier_cut_threshold` for a region cut by the
-    image's border and at least `verifier_cut_share` of its `pixels` (as `OneShotFCN.verify` applies it)."""
-    bars = np.full(len(rows["size"]), bar)
-    if config.verifier_cut_share:
-        cut = rows["at_border"] & (rows["size"] >= config.verifier_cut_share * pixels)
-        bars[cut] = np.minimum(bars[cut], config.verifier_cut_threshold)
-    return bars
 
 
 def share(flags: np.ndarray) -> str:
