@@ -9,6 +9,11 @@ by step (the wrist camera's segmentation names each pixel's object):
 - "on the target, not reached": the box lay mostly on the target and success never came;
 - "target never in view": never >= 20 px of it.
 
+It also prints where the FCN's box costs steps on the episodes both boxes solve: the steps from the target's
+first view (>= 20 px) to the box's first appearance (the exploration's hand-over), on each box, and the
+episodes whose first box came 10 or more steps after the target's first view (a first glimpse turned away,
+so the sweep went round: docs/control.md §7).
+
     python baselines/box_failures.py --episodes 50 --env.fcn-acquire-threshold 0.97 --env.fcn-track-threshold 0.5
     python baselines/box_failures.py --episodes 50 --checkpoint agents/weights/dqn.pt
 """
@@ -29,9 +34,12 @@ from mani_active_vision.evaluation.cli import cli_with_checkpoint_env
 from mani_active_vision.evaluation.protocol import eval_seeds
 from mani_active_vision.evaluation.rollout import run_episode
 from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, slot_relations
+from mani_active_vision.metrics import first_index
 
 SEEN_PX = 20
 """target pixels that count as "in view" """
+LATE_STEPS = 10
+"""a first box this many steps after the target's first view counts as late (the sweep went on past it)"""
 
 
 @dataclass
@@ -53,8 +61,8 @@ def make(env, args: Args):
     return make_policy("servo", env)
 
 
-def box_steps(env, policy, seed: int) -> tuple[bool, list[dict]]:
-    """(success, per observation: target pixels in view, the box's pixels on the target, the object the box
+def box_steps(env, policy, seed: int) -> tuple[float, list[dict]]:
+    """(steps to success (NaN: none), per observation: target pixels in view, the box's pixels on the target, the object the box
     mostly lies on (slot + 1, 0 floor, or None without a box), the box's presence score) of the policy."""
     box_state, base, steps = env, env.unwrapped, []  # make_env's outermost wrapper is the BoxState
 
@@ -72,7 +80,15 @@ def box_steps(env, policy, seed: int) -> tuple[bool, list[dict]]:
         )
 
     trajectory = run_episode(env, policy, seed, on_step=note)
-    return bool(np.any(trajectory.success)), steps
+    return first_index(trajectory.success), steps
+
+
+def first_box_delay(steps: list[dict]) -> float:
+    """Steps from the target's first view (>= SEEN_PX) to the first step with a box (NaN if either never
+    comes): how long the exploration sweeps on past a target in view."""
+    seen = first_index([s["target_px"] >= SEEN_PX for s in steps])
+    boxed = first_index([s["on"] is not None for s in steps])
+    return boxed - seen
 
 
 def classify(steps: list[dict]) -> str:
@@ -95,9 +111,15 @@ def main(args: Args):
     truth_env = make_env(dataclasses.replace(args.env, box_source="ground_truth"))
     fcn_policy, truth_policy = make(fcn_env, args), make(truth_env, args)
     classes, relations, presences, successes = collections.Counter(), collections.Counter(), [], [0, 0]
+    both = []  # (steps to success, first-box delay) on the ground truth's box and on the FCN's, both solved
     for seed in tqdm(list(eval_seeds(args.episodes, args.seed)), desc="episodes"):
-        truth_ok = bool(np.any(run_episode(truth_env, truth_policy, seed).success))
-        fcn_ok, steps = box_steps(fcn_env, fcn_policy, seed)
+        truth_steps_to_success, truth_steps = box_steps(truth_env, truth_policy, seed)
+        fcn_steps_to_success, steps = box_steps(fcn_env, fcn_policy, seed)
+        truth_ok, fcn_ok = not np.isnan(truth_steps_to_success), not np.isnan(fcn_steps_to_success)
+        if truth_ok and fcn_ok:
+            both.append(
+                (truth_steps_to_success, fcn_steps_to_success, first_box_delay(truth_steps), first_box_delay(steps))
+            )
         successes[0] += truth_ok
         successes[1] += fcn_ok
         if not truth_ok or fcn_ok:
@@ -120,6 +142,19 @@ def main(args: Args):
         print(f"  look-alikes by relation: {dict(relations)}")
         print(
             f"  their boxes' presence score: median {np.median(presences):.2f}, 10th percentile {np.percentile(presences, 10):.2f}"
+        )
+    if both:
+        truth_steps, fcn_steps, truth_delay, fcn_delay = np.array(both).T
+        late = fcn_delay >= LATE_STEPS
+        print(
+            f"solved on both boxes: {len(both)}; steps to success {truth_steps.mean():.1f} (ground truth) "
+            f"against {fcn_steps.mean():.1f} (FCN); from the target's first view to the first box "
+            f"{np.nanmean(truth_delay):.1f} against {np.nanmean(fcn_delay):.1f} steps"
+        )
+        print(
+            f"  first box {LATE_STEPS}+ steps after the target's first view (FCN): {int(late.sum())} episodes; "
+            f"they take {(fcn_steps - truth_steps)[late].sum():.0f} more steps to success than on the ground "
+            f"truth's box, all {len(both)} together {(fcn_steps - truth_steps).sum():.0f} more"
         )
 
 

@@ -532,3 +532,6 @@ def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(baseline_scrip
     assert failures.classify(steps((0, None), (25, None), (30, None), (40, 1))) == "target missed"
     assert failures.classify(steps((0, None), (25, 1), (30, 1), (40, None))) == "on the target, not reached"
     assert failures.classify(steps((5, None), (10, 0), (19, None))) == "target never in view"
+    # the first box came 2 steps after the target's first view (>= 20 px); NaN where either never comes
+    assert failures.first_box_delay(steps((5, None), (25, None), (30, None), (40, 1))) == 2
+    assert np.isnan(failures.first_box_delay(steps((5, None), (10, 0))))
