@@ -505,6 +505,10 @@ def train(args: Args, progress: bool = True) -> dict:
         )
     if args.mirror_augment and args.env.with_ee_pos:
         raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
+    if args.mirror_augment and args.env.with_presence:
+        raise ValueError(
+            "mirror_augment reads the mask stats right after the box: it cannot be combined with env.with_presence"
+        )
     if not 0 <= args.box_dropout < 1:
         raise ValueError(f"box_dropout={args.box_dropout} must be a probability in [0, 1)")
     if args.end_learning_rate < 0:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from mani_active_vision.agents.q_network import load_q_network
-from mani_active_vision.agents.recurrent_network import features, load_agent
+from mani_active_vision.agents.recurrent_network import STATE_DIMS, features, load_agent
 from mani_active_vision.directions import DIRECTIONS, STAY, action_names
 
 LEFT, RIGHT, FORWARD, UP, DOWN = (DIRECTIONS.index(d) for d in ("left", "right", "forward", "up", "down"))
@@ -290,7 +290,7 @@ class MemoryPolicy:
                 "train and act with the same stay_action"
             )
         box_dim = box_array(env.observation_space.sample()).shape[-1]
-        if box_dim not in (7, 10):
+        if box_dim not in STATE_DIMS:
             raise ValueError(
                 f"the memory agent acts on the box and the camera's commanded position (7 numbers), the env gives "
                 f"{box_dim}: make it with EnvConfig(with_ee_pos=True)"
@@ -298,7 +298,7 @@ class MemoryPolicy:
         if self.agent.input_dim != box_dim + 1 + self.num_actions:
             raise ValueError(
                 f"the memory agent takes {self.agent.input_dim} inputs, the env's box state gives "
-                f"{box_dim + 1 + self.num_actions}: train and act with the same with_mask_stats"
+                f"{box_dim + 1 + self.num_actions}: train and act with the same with_mask_stats and with_presence"
             )
         self.sample = sample
         self.generator = torch.Generator().manual_seed(seed)

@@ -27,18 +27,24 @@ BOX_DIM, POSITION_DIM, MASK_STATS_DIM = 4, 4, 3
 with `EnvConfig(with_mask_stats=True)`, the mask's share of the image and its centroid's offset (dx, dy)."""
 
 
-def input_dim(num_actions: int, with_mask_stats: bool = False) -> int:
-    return BOX_DIM + POSITION_DIM + MASK_STATS_DIM * with_mask_stats + num_actions
+STATE_DIMS = (BOX_DIM + 3, BOX_DIM + 4, BOX_DIM + 3 + MASK_STATS_DIM, BOX_DIM + 4 + MASK_STATS_DIM)
+"""The box states the memory agent takes: the box and the camera's position, with or without the presence
+score and the mask stats."""
+
+
+def input_dim(num_actions: int, with_mask_stats: bool = False, with_presence: bool = False) -> int:
+    return BOX_DIM + POSITION_DIM + with_presence + MASK_STATS_DIM * with_mask_stats + num_actions
 
 
 def features(box_state: np.ndarray, last_action: np.ndarray, num_actions: int) -> np.ndarray:
     """The network's input (N, input_dim) from the box state with the camera's commanded position (N, 7:
-    `EnvConfig(with_ee_pos=True)`; 10 with the mask stats, `with_mask_stats`) and each env's previous action
+    `EnvConfig(with_ee_pos=True)`; one more with the presence score, `with_presence`, and three more with the
+    mask stats, `with_mask_stats`: whatever follows the position is passed on) and each env's previous action
     (N,), -1 at an episode's start."""
-    if box_state.shape[-1] not in (BOX_DIM + 3, BOX_DIM + 3 + MASK_STATS_DIM):
+    if box_state.shape[-1] not in STATE_DIMS:
         raise ValueError(
             f"the memory agent needs the box with the camera's commanded position (7 numbers, "
-            f"EnvConfig(with_ee_pos=True); 10 with_mask_stats), got {box_state.shape[-1]}"
+            f"EnvConfig(with_ee_pos=True); 8 with_presence, 10 with_mask_stats, 11 with both), got {box_state.shape[-1]}"
         )
     x, y, z = box_state[:, 4], box_state[:, 5], box_state[:, 6]
     azimuth = np.arctan2(y, x)

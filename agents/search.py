@@ -578,7 +578,10 @@ def train(args: Args, progress: bool = True) -> dict:
     env = make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)
     agent = RecurrentActorCritic(
-        input_dim(actions, args.env.with_mask_stats), actions, args.hidden_units, args.actor_sees_input
+        input_dim(actions, args.env.with_mask_stats, args.env.with_presence),
+        actions,
+        args.hidden_units,
+        args.actor_sees_input,
     )
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
     collector = Collector(env, args, writer)

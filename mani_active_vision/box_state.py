@@ -26,7 +26,9 @@ class BoxState(gym.ObservationWrapper):
     """Observation = (x, y, w, h) of the target's box, normalised, zeros when not seen; with
     `with_ee_pos`, the camera's commanded position (x, y, z in m) is appended (the paper's "link state");
     with `with_mask_stats`, then the mask's share of the image and its centroid's offset from the image
-    centre (dx, dy as fractions of the width), zeros when unseen: the quantities success is judged on.
+    centre (dx, dy as fractions of the width), zeros when unseen: the quantities success is judged on; with
+    `with_presence`, the presence score (`last_presence`) before the mask stats, never held: the layout is
+    box, [camera position], [presence], [mask stats].
 
     Batched ManiSkill envs give a torch tensor (N, 4 or 7); a numpy env (`CPUGymWrapper`) gives (4 or 7,).
     `last_mask`: (N, H, W) bool torch tensor, the target mask of the latest observation (ground truth or FCN).
@@ -46,6 +48,7 @@ class BoxState(gym.ObservationWrapper):
         source: str = "ground_truth",
         with_ee_pos: bool = False,
         with_mask_stats: bool = False,
+        with_presence: bool = False,
         segmenter=None,
         thresholds: tuple[float, float] = (0.0, 0.0),
         hold_steps: int = 0,
@@ -72,11 +75,12 @@ class BoxState(gym.ObservationWrapper):
         self.source = source
         self.with_ee_pos = with_ee_pos
         self.with_mask_stats = with_mask_stats
+        self.with_presence = with_presence
         self.thresholds = tuple(thresholds)
         self.hold_steps = hold_steps
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
-        dim = 4 + 3 * with_ee_pos + 3 * with_mask_stats
+        dim = 4 + 3 * with_ee_pos + with_presence + 3 * with_mask_stats
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
         shape = (dim,) if self._numpy else (env.unwrapped.num_envs, dim)
@@ -123,6 +127,8 @@ class BoxState(gym.ObservationWrapper):
             state = torch.cat([state, mask_stats(mask)], -1)
         if self.hold_steps:
             state = self._hold(state)
+        if self.with_presence:  # the source's own score, not held
+            state = torch.cat([state[:, :4], presence[:, None].to(state), state[:, 4:]], -1)
         if self.with_ee_pos:
             state = torch.cat([state[:, :4], base.agent.controller.target_pos.to(state.device), state[:, 4:]], -1)
         if self._numpy:

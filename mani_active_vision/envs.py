@@ -89,6 +89,11 @@ class EnvConfig:
     """append, after the camera's position, the box source's mask's share of the image and its centroid's
     offset from the image centre (dx, dy, fractions of the width; zeros when unseen): what success is judged
     on, which the box alone does not give (docs/search.md)"""
+    with_presence: bool = False
+    """append, after the camera's position and before the mask stats, the box source's presence score: the FCN's
+    probability that the target is in view (its verifier's best region, accepted or not), 1 or 0 for the
+    ground truth's box; for the memory agent, which can then remember a glimpse the FCN did not accept
+    (docs/search.md)"""
     occluders: int = 0
     """upright panels that hide objects from the search height, one in front of each of the first
     `occluders` objects (0 to num_objects; docs/task.md#occluders)"""
@@ -103,6 +108,8 @@ class EnvConfig:
             raise ValueError("with_ee_pos appends to the box state: it needs box_source ground_truth or fcn")
         if self.with_mask_stats and self.box_source == "none":
             raise ValueError("with_mask_stats appends to the box state: it needs box_source ground_truth or fcn")
+        if self.with_presence and self.box_source == "none":
+            raise ValueError("with_presence appends to the box state: it needs box_source ground_truth or fcn")
         if not (isinstance(self.image_size, int) and self.image_size >= 8):
             raise ValueError(f"image_size={self.image_size!r} must be an integer of at least 8")
         for name in ("fcn_acquire_threshold", "fcn_track_threshold"):
@@ -171,6 +178,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         source=config.box_source,
         with_ee_pos=config.with_ee_pos,
         with_mask_stats=config.with_mask_stats,
+        with_presence=config.with_presence,
         segmenter=segmenter,
         thresholds=(config.fcn_acquire_threshold, config.fcn_track_threshold),
         hold_steps=config.box_hold_steps,

@@ -91,6 +91,10 @@ def test_features_are_the_box_the_camera_position_and_the_last_action():
     assert x.shape == (1, input_dim(6, with_mask_stats=True))
     np.testing.assert_allclose(x[0, 8:11], [0.06, 0.1, -0.05], atol=1e-6)
     assert x[0, 11:].tolist() == [0, 0, 1, 0, 0, 0]
+    with_presence = np.concatenate([box_state, [[0.7, 0.06, 0.1, -0.05]]], 1).astype(np.float32)  # presence first
+    x = features(with_presence, np.array([2]), 6)
+    assert x.shape == (1, input_dim(6, with_mask_stats=True, with_presence=True))
+    np.testing.assert_allclose(x[0, 8:12], [0.7, 0.06, 0.1, -0.05], atol=1e-6)
     with pytest.raises(ValueError, match="with_ee_pos=True"):
         features(box_state[:, :4], np.array([-1]), 6)
 

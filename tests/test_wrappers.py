@@ -84,3 +84,23 @@ def test_the_mask_stats_are_what_success_is_judged_on():
     assert seen > 0
     with pytest.raises(ValueError, match="with_mask_stats appends to the box state"):
         EnvConfig(box_source="none", with_mask_stats=True)
+
+
+def test_the_presence_score_sits_between_the_camera_position_and_the_mask_stats_and_is_never_held():
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed"))
+    env = BoxState(task, with_ee_pos=True, with_mask_stats=True, with_presence=True, hold_steps=5)
+    obs, info = env.reset(seed=0)
+    seen = unseen_held = 0
+    for a in [0, 0, 0, 1, 1, 1, 1, 1, 1, 2, 2, 2]:
+        obs, _, _, _, info = env.step(a)
+        assert obs.shape == (1, 11) and env.observation_space.shape == (1, 11)
+        assert torch.allclose(obs[:, 4:7], env.unwrapped.agent.controller.target_pos)
+        in_view = bool(env.last_mask.any())
+        assert obs[0, 7] == float(in_view) == float(env.last_presence[0])  # the ground truth's: 1 or 0
+        if in_view:  # the mask stats follow it
+            torch.testing.assert_close(obs[0, 8], info["target_fraction"][0])
+        seen += in_view
+        unseen_held += (not in_view) and bool(obs[0, 2] > 0)  # the box held, the presence the source's own 0
+    assert seen > 0 and unseen_held > 0
+    with pytest.raises(ValueError, match="with_presence appends to the box state"):
+        EnvConfig(box_source="none", with_presence=True)
