@@ -131,6 +131,9 @@ class Args:
     """Huber (smooth L1) TD loss instead of the squared error"""
     explore: bool = True
     """the paper's scripted exploration until the target is first seen, then the DQN"""
+    look_over: bool = False
+    """the exploration (and the servo's demonstrations) first look over the occluders (`policies.LOOK_OVER`);
+    kept in the checkpoint, so the agent is explored for the same way when it acts (docs/task.md#occluders)"""
     end_at_success: bool = False
     """end a training episode at the first success, a terminal state for the learner (not in the paper;
     evaluation runs the env as it is)"""
@@ -434,7 +437,7 @@ class Selector:
             with_last_action=self.args.with_last_action,
             avoid_refused=self.args.avoid_refused,
         )
-        policy = ExplorePolicy(self.env, then=greedy) if self.args.explore else greedy
+        policy = ExplorePolicy(self.env, then=greedy, look_over=self.args.look_over) if self.args.explore else greedy
         episodes = evaluate(self.env, policy, self.seeds, with_reference=False, progress=False)
         score = (
             float(np.mean([e["success"] for e in episodes])),
@@ -513,6 +516,8 @@ def train(args: Args, progress: bool = True) -> dict:
         raise ValueError(f"box_dropout={args.box_dropout} must be a probability in [0, 1)")
     if args.end_learning_rate < 0:
         raise ValueError(f"end_learning_rate={args.end_learning_rate} must be ≥ 0 (0: constant learning_rate)")
+    if args.look_over and not args.explore:
+        raise ValueError("look_over is the exploration's lead-in: it needs explore")
     if args.env.box_source == "none":
         raise ValueError("the DQN learns on the box state: env.box_source must be ground_truth or fcn")
     if args.episodes % args.num_envs:
@@ -550,9 +555,9 @@ def train(args: Args, progress: bool = True) -> dict:
         target_network = q_network  # bootstrap from the online network itself
     # the ε-greedy learner acts without avoid_refused: it is for the trained agent (measured: docs/control.md §7)
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
-    servo = ServoPolicy(env, hold=actions > len(DIRECTIONS), hold_limits=hold_limits)
+    servo = ServoPolicy(env, hold=actions > len(DIRECTIONS), hold_limits=hold_limits, look_over=args.look_over)
     mixed = DemoOrLearner(servo, learner)
-    actor = ExplorePolicy(env, then=mixed) if args.explore else mixed
+    actor = ExplorePolicy(env, then=mixed, look_over=args.look_over) if args.explore else mixed
     buffer = ReplayBuffer(args.buffer_size, state_dim)
     windows = [NStepWindow(args.n_step, args.gamma) for _ in range(n)]
     learner_rewards = [LearnerReward(args, args.env.success_fraction, hold_limits) for _ in range(n)]

@@ -21,11 +21,13 @@ from mani_active_vision.agents.policies import (
     DOWN,
     FORWARD,
     LEFT,
+    LOOK_OVER,
     POLICIES,
     RIGHT,
     UP,
     DQNPolicy,
     ExplorePolicy,
+    Sweep,
     make_policy,
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
@@ -535,3 +537,20 @@ def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(baseline_scrip
     # the first box came 2 steps after the target's first view (>= 20 px); NaN where either never comes
     assert failures.first_box_delay(steps((5, None), (25, None), (30, None), (40, 1))) == 2
     assert np.isnan(failures.first_box_delay(steps((5, None), (10, 0))))
+
+
+def test_the_look_over_lead_in_comes_before_the_orbit_and_follows_a_dqn_trained_after_it():
+    sweep = Sweep(1, lead_in=LOOK_OVER)
+    refused, free = {"refused": np.array([True])}, {"refused": np.array([False])}
+    actions = [int(sweep.act(refused if i == 2 else free)[0]) for i in range(len(LOOK_OVER))]
+    assert actions == list(LOOK_OVER)  # a refused lead-in step does not turn the orbit
+    assert int(sweep.act(free)[0]) == LEFT and int(sweep.act(refused)[0]) == RIGHT
+    sweep.reset()
+    assert int(sweep.act(free)[0]) == LOOK_OVER[0]
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1))
+    trained_after = types.SimpleNamespace(config={"look_over": True})
+    assert len(ExplorePolicy(env, then=trained_after).sweep.lead_in) == len(LOOK_OVER)
+    assert len(ExplorePolicy(env, then=types.SimpleNamespace(config={})).sweep.lead_in) == 0
+    assert len(ExplorePolicy(env, then=trained_after, look_over=False).sweep.lead_in) == 0
+    with pytest.raises(ValueError, match="look_over is the exploration's lead-in"):
+        dqn.train(dqn.Args(look_over=True, explore=False), progress=False)

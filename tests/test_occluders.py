@@ -166,3 +166,17 @@ def test_data_views_keep_the_camera_out_of_the_panels():
             points_inside(camera_end(torch.tensor(free[None], dtype=torch.float32), pitch), panels).any()
         )
     assert inside_without > 0  # without the panels some of these views would be inside one
+
+
+def test_occlusion_rings_tell_a_target_a_panel_cuts_from_one_no_panel_hides(baseline_script):
+    occlusion = baseline_script("occlusion")
+    env = cached_task(occluders=1, num_objects=1)
+    env.reset(seed=3)  # the target 0.81 m out: at 64² the rings of 8 forward steps see 20 px of it
+    base = env.unwrapped
+    pixels = int(np.prod(base._hand_camera_images()["segmentation"].shape[1:3]))
+    assert occlusion.ring_views(base, 0, 10, pixels) is None  # 1.40 m: above the controller's highest
+    assert occlusion.ring_views(base, 8, -3, pixels) == (True, False)  # seen, but its panel cuts it
+    base.panels[0].set_pose(Pose.create_from_pq(torch.tensor([[3.0, 3.0, 0.0]])))  # the panel out of the way
+    assert occlusion.ring_views(base, 8, -3, pixels) == (True, True)
+    radius, height = occlusion.ring_pose(2, -3, 0.05, math.radians(60))
+    assert radius == pytest.approx(0.35) and height == pytest.approx(0.90 - 0.1 * math.sin(math.radians(60)) - 0.15)
