@@ -133,6 +133,10 @@ class Sweep:
         self.direction[:] = self.first
         self.steps[:] = 0
 
+    def leading(self) -> np.ndarray:
+        """(N,) bool: the next action is the lead-in's (a sighting does not cut it short: `ExplorePolicy`)."""
+        return self.steps < len(self.lead_in)
+
     def act(self, info) -> np.ndarray:
         # a refusal turns the orbit only when the refused step was an orbit step, not the lead-in's
         refused = info_flags(info, "refused", len(self.direction)) & (self.steps > len(self.lead_in))
@@ -174,6 +178,7 @@ class ServoPolicy:
 
     def act(self, obs, info) -> np.ndarray:
         x, y, w, h = box_array(obs)[:, :4].T
+        leading = self.sweep.leading()
         sweep = self.sweep.act(info)  # called every step so that refusals while sweeping turn it
         cx, cy = x + w / 2, y + h / 2
         action = np.full(self.num_envs, FORWARD)
@@ -182,7 +187,7 @@ class ServoPolicy:
         off_x = np.abs(cx - 0.5) > self.center_tol
         action[off_x] = np.where(cx[off_x] < 0.5, LEFT, RIGHT)
         unseen = w <= 0
-        action[unseen] = sweep[unseen]
+        action[unseen | leading] = sweep[unseen | leading]  # a lead-in is finished before the target is served
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
@@ -214,14 +219,15 @@ class ExplorePolicy:
             self.then.reset(obs, info)
 
     def update(self, obs):
-        """Latch the hand-over for envs whose target is in view now; returns `handed_over`."""
+        """Latch the hand-over for envs whose target is in view now, the sweep's lead-in (if any) done; returns
+        `handed_over`."""
         if self.then is not None:
-            self.handed_over |= box_array(obs)[:, 2] > 0
+            self.handed_over |= (box_array(obs)[:, 2] > 0) & ~self.sweep.leading()
         return self.handed_over
 
     def act(self, obs, info) -> np.ndarray:
+        handed_over = self.update(obs)  # before the sweep counts this step
         action = self.sweep.act(info)
-        handed_over = self.update(obs)
         if handed_over.any():
             action = np.where(handed_over, self.then.act(obs, info), action)
         return action.astype(np.int64)

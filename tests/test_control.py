@@ -541,9 +541,11 @@ def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(baseline_scrip
 
 def test_the_look_over_lead_in_comes_before_the_orbit_and_follows_a_dqn_trained_after_it():
     sweep = Sweep(1, lead_in=LOOK_OVER)
+    assert sweep.leading().all()
     refused, free = {"refused": np.array([True])}, {"refused": np.array([False])}
     actions = [int(sweep.act(refused if i == 2 else free)[0]) for i in range(len(LOOK_OVER))]
     assert actions == list(LOOK_OVER)  # a refused lead-in step does not turn the orbit
+    assert not sweep.leading().any()
     assert int(sweep.act(free)[0]) == LEFT and int(sweep.act(refused)[0]) == RIGHT
     sweep.reset()
     assert int(sweep.act(free)[0]) == LOOK_OVER[0]
@@ -552,5 +554,11 @@ def test_the_look_over_lead_in_comes_before_the_orbit_and_follows_a_dqn_trained_
     assert len(ExplorePolicy(env, then=trained_after).sweep.lead_in) == len(LOOK_OVER)
     assert len(ExplorePolicy(env, then=types.SimpleNamespace(config={})).sweep.lead_in) == 0
     assert len(ExplorePolicy(env, then=trained_after, look_over=False).sweep.lead_in) == 0
+    explorer = ExplorePolicy(env, then=trained_after)  # a target in view during the lead-in is not handed over
+    seen = np.array([[0.4, 0.4, 0.1, 0.1]], np.float32)
+    for _ in LOOK_OVER:
+        assert not explorer.update(seen).any()
+        explorer.sweep.act(free)
+    assert explorer.update(seen).all()
     with pytest.raises(ValueError, match="look_over is the exploration's lead-in"):
         dqn.train(dqn.Args(look_over=True, explore=False), progress=False)
