@@ -142,7 +142,7 @@ class Sweep:
         refused = info_flags(info, "refused", len(self.direction)) & (self.steps > len(self.lead_in))
         self.direction[refused] = np.where(self.direction[refused] == LEFT, RIGHT, LEFT)
         action = self.direction.copy()
-        leading = self.steps < len(self.lead_in)
+        leading = self.leading()
         action[leading] = self.lead_in[self.steps[leading]]
         self.steps += 1
         return action

@@ -144,17 +144,17 @@ def main(args: Args):
             f"  their boxes' presence score: median {np.median(presences):.2f}, 10th percentile {np.percentile(presences, 10):.2f}"
         )
     if both:
-        truth_steps, fcn_steps, truth_delay, fcn_delay = np.array(both).T
+        truth_to_success, fcn_to_success, truth_delay, fcn_delay = np.array(both).T
         late = fcn_delay >= LATE_STEPS
         print(
-            f"solved on both boxes: {len(both)}; steps to success {truth_steps.mean():.1f} (ground truth) "
-            f"against {fcn_steps.mean():.1f} (FCN); from the target's first view to the first box "
+            f"solved on both boxes: {len(both)}; steps to success {truth_to_success.mean():.1f} (ground truth) "
+            f"against {fcn_to_success.mean():.1f} (FCN); from the target's first view to the first box "
             f"{np.nanmean(truth_delay):.1f} against {np.nanmean(fcn_delay):.1f} steps"
         )
         print(
             f"  first box {LATE_STEPS}+ steps after the target's first view (FCN): {int(late.sum())} episodes; "
-            f"they take {(fcn_steps - truth_steps)[late].sum():.0f} more steps to success than on the ground "
-            f"truth's box, all {len(both)} together {(fcn_steps - truth_steps).sum():.0f} more"
+            f"they take {(fcn_to_success - truth_to_success)[late].sum():.0f} more steps to success than on the ground "
+            f"truth's box, all {len(both)} together {(fcn_to_success - truth_to_success).sum():.0f} more"
         )
 
 
