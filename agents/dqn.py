@@ -555,7 +555,13 @@ def train(args: Args, progress: bool = True) -> dict:
         target_network = q_network  # bootstrap from the online network itself
     # the ε-greedy learner acts without avoid_refused: it is for the trained agent (measured: docs/control.md §7)
     learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
-    servo = ServoPolicy(env, hold=actions > len(DIRECTIONS), hold_limits=hold_limits, look_over=args.look_over)
+    servo = ServoPolicy(  # after the exploration's hand-over the lead-in is done: the servo does not redo it
+        env,
+        hold=actions > len(DIRECTIONS),
+        hold_limits=hold_limits,
+        look_over=args.look_over,
+        lead_in=args.look_over and not args.explore,
+    )
     mixed = DemoOrLearner(servo, learner)
     actor = ExplorePolicy(env, then=mixed, look_over=args.look_over) if args.explore else mixed
     buffer = ReplayBuffer(args.buffer_size, state_dim)

@@ -158,6 +158,9 @@ class Args:
     a DQN checkpoint (the scripted exploration handing over to that DQN, as it is deployed), e.g.
     agents/weights/dqn_hold_demo_wide.pt (six directions, the box alone) or agents/weights/dqn.pt (`stay` and
     the mask stats: needs env.stay_action and env.with_mask_stats)"""
+    teacher_looks_over: bool = False
+    """with teacher=servo: the servo looks over the occluders (the LOOK_OVER lead-in, then it approaches from
+    above: `ServoPolicy(look_over=True)`), for scenes with env.occluders (docs/task.md#occluders)"""
     teacher_stays: bool = False
     """the teacher takes `stay` (the env needs stay_action) while the task reports success: privileged (the
     ground truth's success), a teacher that shows holding"""
@@ -217,6 +220,8 @@ def check(args: Args):
         for option in ("with_mask_stats", "stay_action"):
             if getattr(taught_in, option) and not getattr(args.env, option):
                 raise ValueError(f"teacher {args.teacher!r} was trained with {option}: it needs env.{option}")
+    if args.teacher_looks_over and args.teacher != "servo":
+        raise ValueError(f"teacher_looks_over is the servo's: it needs teacher=servo, not {args.teacher!r}")
     if args.teacher_stays and not args.env.stay_action:
         raise ValueError("teacher_stays takes `stay`: it needs env.stay_action")
     if args.teacher_box not in TEACHER_BOXES:
@@ -341,18 +346,22 @@ class Collector:
 
 
 class ServoTeacher:
-    """The scripted servo as the teacher, asked in the learner's own states; its sweep restarts with every
-    episode and turns on refused steps (whoever took them). With `stays` it takes `stay` in success."""
+    """The scripted servo as the teacher, asked in the learner's own states; its sweep (and, with `look_over`,
+    its lead-in) restarts with every episode and turns on refused steps (whoever took them). With `stays` it
+    takes `stay` in success; with `look_over` it looks over the occluders (`ServoPolicy(look_over=True)`) and
+    its rules against repeating a refused step or turning straight back read the learner's previous action."""
 
-    def __init__(self, env, stays: bool = False):
-        self.servo = ServoPolicy(env, hold=stays)
+    def __init__(self, env, stays: bool = False, look_over: bool = False):
+        self.servo = ServoPolicy(env, hold=stays, look_over=look_over)
 
     def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
-        self.servo.sweep.direction[starts] = self.servo.sweep.first
+        sweep = self.servo.sweep
+        sweep.direction[starts], sweep.steps[starts], sweep.turned[starts] = sweep.first, 0, False
+        self.servo.last_action[starts] = -1
         return self.servo.act(obs, info)
 
     def executed(self, action: np.ndarray):
-        pass
+        self.servo.last_action[:] = action
 
 
 class ExploreDQNTeacher:
@@ -455,7 +464,7 @@ class GroundTruthBoxTeacher:
 
 def make_teacher(env, args: Args):
     if args.teacher == "servo":
-        teacher = ServoTeacher(env, args.teacher_stays)
+        teacher = ServoTeacher(env, args.teacher_stays, args.teacher_looks_over)
     else:
         limits = margin_limits(args.env.success_fraction, args.env.success_center_tol, args.teacher_stay_margin)
         teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits, args.env.with_mask_stats)

@@ -18,10 +18,12 @@ from conftest import ROOT, cached_task
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import (
+    BACKWARD,
     DOWN,
     FORWARD,
     LEFT,
     LOOK_OVER,
+    LOOK_OVER_TURN,
     POLICIES,
     RIGHT,
     UP,
@@ -300,6 +302,58 @@ def test_the_holding_servo_stays_in_success_only():
         make_policy(
             "servo", types.SimpleNamespace(unwrapped=env.unwrapped, action_space=gym.spaces.Discrete(6)), hold=True
         )
+
+
+def test_the_look_over_sweep_turns_at_the_placement_range_once_or_at_a_refusal():
+    free, refused = {"refused": np.array([False])}, {"refused": np.array([True])}
+    sweep = Sweep.looking_over(1)
+    actions = [int(sweep.act(free)[0]) for _ in range(len(LOOK_OVER) + LOOK_OVER_TURN + 3)]
+    orbit = actions[len(LOOK_OVER) :]
+    assert orbit == [LEFT] * LOOK_OVER_TURN + [RIGHT] * 3  # turned after LOOK_OVER_TURN orbit steps
+    assert int(sweep.act(refused)[0]) == LEFT  # then a refusal (joint 1's limit) turns it as before
+    sweep.reset()
+    for _ in range(len(LOOK_OVER) + 2):
+        sweep.act(free)
+    assert int(sweep.act(refused)[0]) == RIGHT  # refused before the first turn: turned once, not again
+    assert [int(sweep.act(free)[0]) for _ in range(LOOK_OVER_TURN)] == [RIGHT] * LOOK_OVER_TURN
+
+
+def test_the_look_over_servo_approaches_from_above_backs_off_and_does_not_repeat_a_refusal():
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(6))
+    servo = make_policy("servo", env, look_over=True, lead_in=False)
+    plain = make_policy("servo", env)
+    free, refused = {"refused": np.array([False])}, {"refused": np.array([True])}
+
+    def act(policy, box, info=free):
+        return int(policy.act(np.array([box], np.float32), info)[0])
+
+    small_and_low = [0.45, 0.62, 0.1, 0.1]  # centre row 0.67: the plain servo centres it, this one comes closer
+    assert act(plain, small_and_low) == DOWN and act(servo, small_and_low) == FORWARD
+    near_and_low = [0.35, 0.55, 0.3, 0.3]  # once near, it is centred
+    assert act(servo, near_and_low) == DOWN
+    assert act(servo, [0.0, 0.1, 1.0, 0.8]) == BACKWARD  # spans the image: too close
+    servo.reset(None, None)
+    assert act(servo, small_and_low) == FORWARD
+    assert act(servo, small_and_low, refused) == UP  # the forward step was refused: up, not forward again
+    assert act(servo, [0.25, 0.5, 0.1, 0.1]) == LEFT
+    right_of_centre = [0.6, 0.5, 0.1, 0.1]
+    assert act(plain, right_of_centre) == RIGHT
+    assert act(servo, right_of_centre) == FORWARD  # not straight back across the target after a left step
+    assert act(make_policy("servo", env, look_over=True), small_and_low) == LOOK_OVER[0]  # with the lead-in first
+
+
+def test_the_dqns_demonstrating_servo_approaches_from_above_without_redoing_the_lead_in(monkeypatch, tmp_path):
+    made = []
+
+    class Recorded(dqn.ServoPolicy):
+        def __init__(self, env, **kwargs):
+            made.append(kwargs)
+            super().__init__(env, **kwargs)
+
+    monkeypatch.setattr(dqn, "ServoPolicy", Recorded)
+    args = dqn.Args(look_over=True, demo_episodes=1, episodes=1, env=EnvConfig(max_episode_steps=2))
+    dqn.train(dataclasses.replace(args, run_dir=str(tmp_path)), progress=False)
+    assert made[0]["look_over"] and not made[0]["lead_in"]  # the exploration has looked over before it hands over
 
 
 def test_batched_training_plays_the_same_episodes_as_one_env(tmp_path):

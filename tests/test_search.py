@@ -229,6 +229,20 @@ def test_the_shipped_dqn_teaches_on_the_box_and_mask_stats_and_stays_by_itself()
     assert teacher.act(learner_state(far, far_stats), refused, going)[0] == q.argmax().item() != FORWARD
 
 
+def test_a_servo_teacher_that_looks_over_restarts_its_lead_in_per_episode_and_reads_the_learners_steps():
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(7))
+    teacher = search.ServoTeacher(env, look_over=True)
+    unseen, free = np.zeros((2, 4), np.float32), {"refused": np.zeros(2, bool)}
+    lead_in = teacher.servo.sweep.lead_in
+    for step in range(3):  # both envs in the lead-in
+        starts = np.array([step == 0, step == 0])
+        assert teacher.act(unseen, free, starts).tolist() == [lead_in[step]] * 2
+        teacher.executed(np.array([LEFT, LEFT]))
+    assert teacher.act(unseen, free, np.array([True, False])).tolist() == [lead_in[0], lead_in[3]]  # env 0 restarts
+    teacher.executed(np.array([FORWARD, FORWARD]))
+    assert teacher.servo.last_action.tolist() == [FORWARD, FORWARD]  # the learner's, not the teacher's
+
+
 def test_a_ground_truth_box_teacher_sees_the_segmentations_box_and_the_learners_position():
     seen = []
     stub = types.SimpleNamespace(act=lambda obs, info, starts: seen.append(obs) or np.zeros(2, np.int64))
@@ -306,6 +320,8 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
         search.check(dataclasses.replace(search.Args(), teacher="nope.pt"))
     with pytest.raises(ValueError, match="dqn.pt' was trained with with_mask_stats: it needs env.with_mask_stats"):
         search.check(dataclasses.replace(search.Args(), teacher=SHIPPED_DQN))
+    with pytest.raises(ValueError, match="teacher_looks_over is the servo's: it needs teacher=servo"):
+        search.check(dataclasses.replace(search.Args(), teacher_looks_over=True))
     with pytest.raises(ValueError, match="teacher_stays takes `stay`: it needs env.stay_action"):
         search.check(dataclasses.replace(search.Args(), teacher_stays=True))
     with pytest.raises(ValueError, match=r"teacher_stay_margin=1.5 must be in \[0, 1\)"):
