@@ -413,8 +413,17 @@ POLICIES: dict[str, Callable] = {
 }
 
 
-def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0) -> dict:
-    """The keyword arguments `make_policy` needs for `name` (and, for "explore", the policy it hands over to)."""
+def policy_kwargs(
+    name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0, look_over: bool = False
+) -> dict:
+    """The keyword arguments `make_policy` needs for `name` (and, for "explore", the policy it hands over to).
+    `look_over` (scenes with occluders): the servo's or the exploration's sweep starts with LOOK_OVER, and the
+    servo approaches from above."""
+    if look_over and (name not in ("servo", "explore") or (name == "explore" and then == "servo")):
+        raise ValueError(
+            f"look_over is for policy 'servo' (which sweeps itself) or 'explore' handing over to dqn, random or none; "
+            f"not policy {name!r} then {then!r}"
+        )
     uses_dqn = name == "dqn" or (name == "explore" and then == "dqn")
     if uses_dqn and not checkpoint:
         raise ValueError(f"policy {name!r} (then {then!r}) needs a DQN checkpoint")
@@ -427,6 +436,8 @@ def policy_kwargs(name: str, then: str = "none", checkpoint: str = "", seed: int
         kwargs["then"] = then
     if name in ("random", "explore", "dqn", "memory"):
         kwargs["seed"] = seed
+    if look_over:
+        kwargs["look_over"] = True
     return kwargs
 
 

@@ -5,6 +5,7 @@ success, SPL, final target fraction, return (`mani_active_vision.metrics`).
     python baselines/evaluate.py --policy servo --episodes 20
     python baselines/evaluate.py --policy explore --then dqn --checkpoint runs/dqn/random_explore_seed0/q_network.pt
     python baselines/evaluate.py --policy explore --then dqn --checkpoint ... --env.box-source fcn --env.object-set unseen
+    python baselines/evaluate.py --policy servo --look-over --env.occluders 2 --env.object-set unseen --episodes 50
 
 Episode seeds are `seed, seed+1, ...` (default from 1,000,000: never a training scene). With a DQN
 checkpoint the env is the one it was trained in; each `--env.*` flag given overrides that option.
@@ -40,6 +41,9 @@ class Args:
     for --policy memory"""
     epsilon: float = 0.0
     """for a DQN: the share of random actions (ε-greedy; 0 = greedy)"""
+    look_over: bool = False
+    """for --policy servo or explore, on scenes with --env.occluders: the sweep first looks over the panels
+    (policies.LOOK_OVER) and the servo approaches from above (docs/task.md#occluders)"""
     episodes: int = 20
     """evaluation episodes"""
     seed: int = EVAL_SEED
@@ -52,7 +56,7 @@ class Args:
 
 def main(args: Args) -> dict:
     torch.set_num_threads(1)
-    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, args.epsilon)
+    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, args.epsilon, args.look_over)
     env = make_env(args.env)
     try:
         policy = make_policy(args.policy, env, **kwargs)

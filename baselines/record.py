@@ -39,6 +39,9 @@ class Args:
     """for --policy explore: the policy that takes over once the target is seen (servo, dqn, random, none)"""
     checkpoint: str = ""
     """a DQN checkpoint (q_network.pt), for --policy dqn or --then dqn; the memory agent's for --policy memory"""
+    look_over: bool = False
+    """for --policy servo or explore, on scenes with --env.occluders: the sweep first looks over the panels and the
+    servo approaches from above (docs/task.md#occluders)"""
     image_format: str = "jpeg"
     """wrist RGB as jpeg (small) or raw"""
     jpeg_quality: int = 90
@@ -49,7 +52,7 @@ def main(args: Args):
     torch.set_num_threads(1)
     if args.policy not in POLICIES:  # before any file is written
         raise ValueError(f"policy={args.policy!r} is not one of: {', '.join(POLICIES)}")
-    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed)
+    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, look_over=args.look_over)
     with RerunRecorder(
         make_env(args.env), args.out, image_format=args.image_format, jpeg_quality=args.jpeg_quality
     ) as env:

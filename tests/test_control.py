@@ -31,6 +31,7 @@ from mani_active_vision.agents.policies import (
     ExplorePolicy,
     Sweep,
     make_policy,
+    policy_kwargs,
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.box_state import BoxState
@@ -340,6 +341,18 @@ def test_the_look_over_servo_approaches_from_above_backs_off_and_does_not_repeat
     assert act(plain, right_of_centre) == RIGHT
     assert act(servo, right_of_centre) == FORWARD  # not straight back across the target after a left step
     assert act(make_policy("servo", env, look_over=True), small_and_low) == LOOK_OVER[0]  # with the lead-in first
+
+
+def test_policy_kwargs_look_over_reaches_the_servo_and_the_exploration_and_names_a_wrong_pairing():
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(6))
+    servo = make_policy("servo", env, **policy_kwargs("servo", look_over=True))
+    explore = make_policy("explore", env, **policy_kwargs("explore", look_over=True))
+    assert servo.look_over and list(servo.sweep.lead_in) == list(LOOK_OVER)
+    assert list(explore.sweep.lead_in) == list(LOOK_OVER)
+    assert len(make_policy("explore", env, **policy_kwargs("explore")).sweep.lead_in) == 0
+    for name, then in (("random", "none"), ("explore", "servo")):
+        with pytest.raises(ValueError, match=f"not policy '{name}' then '{then}'"):
+            policy_kwargs(name, then, look_over=True)
 
 
 def test_the_dqns_demonstrating_servo_approaches_from_above_without_redoing_the_lead_in(monkeypatch, tmp_path):
