@@ -114,9 +114,10 @@ def train_seed(args: Args, seed: int):
 
 
 def eval_config(base: EnvConfig, args: Args, box: str, thresholds: tuple[float, float] | None = None) -> EnvConfig:
-    """`base` on the evaluation objects and this box: the FCN's as deployed (`EnvConfig.on_fcn_box`, with
+    """`base` on the evaluation objects, the training scenes' occluders (so that the baselines and the SPL's
+    reference play the agents' scenes) and this box: the FCN's as deployed (`EnvConfig.on_fcn_box`, with
     `thresholds` the verifier's bars), or the ground truth's as it is (nothing held)."""
-    base = base.replace(object_set=args.eval_object_set)
+    base = base.replace(object_set=args.eval_object_set, occluders=args.train.env.occluders)
     return base.on_fcn_box(thresholds) if box == "fcn" else base.replace(box_source=box, box_hold_steps=0)
 
 

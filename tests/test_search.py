@@ -405,3 +405,11 @@ def test_the_dqns_mirror_augmentation_refuses_the_presence_score():
     args = dqn.Args(mirror_augment=True, env=EnvConfig(with_presence=True))
     with pytest.raises(ValueError, match="cannot be combined with env.with_presence"):
         dqn.train(args, progress=False)
+
+
+def test_search_seeds_evaluates_every_agent_on_the_training_scenes_occluders(baseline_script):
+    search_seeds = baseline_script("search_seeds")
+    args = search_seeds.Args(train=search.Args(env=EnvConfig(occluders=2)))
+    for box in ("fcn", "ground_truth"):
+        config = search_seeds.eval_config(EnvConfig(), args, box)
+        assert config.occluders == 2 and config.object_set == args.eval_object_set and config.box_source == box
