@@ -13,12 +13,16 @@ reach from the search pose (k forward steps, then j steps up or down), at azimut
 target's in 3° steps, the camera end clear of the panels; a ring "sees" the target where some view shows at
 least 20 of its pixels, and "sees it whole" where some such view has it fully in view (no border, no panel).
 
+With `--split`, evaluations on these scenes are split the same way: do they find the targets a panel hides?
+
     .venv/bin/python baselines/occlusion.py --scenes 100 --occluders 2
     .venv/bin/python baselines/occlusion.py --scenes 50 --occluders 2 --rings --timing-steps 0
+    .venv/bin/python baselines/occlusion.py --scenes 50 --image-size 128 --timing-steps 0 --split runs/over_eval/*.json
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -53,10 +57,28 @@ class Args:
     """also: from which orbit rings the target hidden from the search pose could be seen"""
     ring_forward_steps: tuple[int, ...] = (0, 2, 4, 6, 8)
     ring_vertical_steps: tuple[int, ...] = (-6, -3, 0, 3)
+    split: tuple[str, ...] = ()
+    """evaluation JSONs (`evaluate.py --json`, `search_seeds.py`'s) on these scenes: their success on the scenes
+    where a panel hides the target from the search pose and on those where it is in view"""
 
 
 SEEN_PX = 20
 """target pixels that count as seen"""
+
+
+def success_by_kind(episodes: list[dict], kinds: dict[int, str]) -> dict[str, tuple[float, int]]:
+    """Success rate and episode count on the scenes where a panel hides the target from the search pose (wholly
+    or partly) and on those where it is in view; an episode on a scene not classified is an error."""
+    missing = sorted({e["seed"] for e in episodes} - kinds.keys())
+    if missing:
+        raise ValueError(
+            f"episode seeds {missing[:3]}... are not among the {len(kinds)} scenes classified: raise --scenes"
+        )
+    out = {}
+    for group, members in (("hidden", ("wholly_hidden", "partly_hidden")), ("in view", ("in_view",))):
+        wins = [bool(e["success"]) for e in episodes if kinds[e["seed"]] in members]
+        out[group] = (float(np.mean(wins)) if wins else math.nan, len(wins))
+    return out
 
 
 def search_view(base) -> tuple[int, int]:
@@ -219,6 +241,14 @@ def main(args: Args):
             any(rings[key][i] is not None and rings[key][i][0] for key in rings) for i in range(len(hidden_seeds))
         ]
         print(f"\nSeen from some ring: {np.mean(seen_any) if seen_any else 0:.2f} of the hidden scenes")
+    if args.split:
+        print("\nSuccess by what the search pose sees of the target:\n")
+        print("| evaluation | hidden (wholly or partly) | in view |")
+        print("|---|---|---|")
+        for path in args.split:
+            with open(path) as f:
+                split = success_by_kind(json.load(f)["episodes"], kinds)
+            print(f"| {path} | " + " | ".join(f"{rate:.2f} of {n}" for rate, n in split.values()) + " |")
     load = os.getloadavg()[0]
     print(
         f"\nThe visibility rule per call (load {load:.1f}): " + ", ".join(f"{k} {v:.2f} ms" for k, v in costs.items())

@@ -180,3 +180,12 @@ def test_occlusion_rings_tell_a_target_a_panel_cuts_from_one_no_panel_hides(base
     assert occlusion.ring_views(base, 8, -3, pixels) == (True, True)
     radius, height = occlusion.ring_pose(2, -3, 0.05, math.radians(60))
     assert radius == pytest.approx(0.35) and height == pytest.approx(0.90 - 0.1 * math.sin(math.radians(60)) - 0.15)
+
+
+def test_success_is_split_by_what_the_search_pose_sees_and_an_unclassified_scene_is_named(baseline_script):
+    occlusion = baseline_script("occlusion")
+    kinds = {1: "wholly_hidden", 2: "partly_hidden", 3: "in_view", 4: "out_of_view"}
+    episodes = [{"seed": 1, "success": 1.0}, {"seed": 2, "success": 0.0}, {"seed": 3, "success": 1.0}]
+    assert occlusion.success_by_kind(episodes, kinds) == {"hidden": (0.5, 2), "in view": (1.0, 1)}
+    with pytest.raises(ValueError, match=r"seeds \[7\]"):
+        occlusion.success_by_kind([{"seed": 7, "success": 1.0}], kinds)
