@@ -369,6 +369,22 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     assert policy.last_action[0] in range(7)
 
 
+def test_the_memory_agent_shipped_for_occluded_scenes_looks_over_and_acts_as_deployed():
+    path = os.path.join(ROOT, "agents", "weights", "search_occluded.pt")
+    config = torch.load(path, weights_only=True)["config"]
+    deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+    assert config["teacher"] == "servo" and config["teacher_looks_over"] and config["teacher_stays"]
+    assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True, occluders=2)
+    assert deployed == trained.replace(object_set="unseen").on_fcn_box()  # scripts/make_search_occluded.sh's
+    env = mav.make_env(deployed.replace(max_episode_steps=10))
+    try:
+        policy = make_policy("memory", env, checkpoint=path)
+        evaluate(env, policy, [1_000_000], with_reference=False, progress=False)
+    finally:
+        env.close()
+    assert policy.last_action[0] in range(7)
+
+
 def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, baseline_script):
     perturb = baseline_script("perturb")
     checkpoint = os.path.join(ROOT, "agents", "weights", "search.pt")
