@@ -349,10 +349,25 @@ def test_bad_options_are_named_with_the_valid_ones(tmp_path):
         env.close()
 
 
-def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
-    path = os.path.join(ROOT, "agents", "weights", "search.pt")
+def shipped_memory_agent(name: str) -> tuple[str, dict, EnvConfig, EnvConfig]:
+    """A shipped memory agent's path, config, deployed env and training env."""
+    path = os.path.join(ROOT, "agents", "weights", name)
     config = torch.load(path, weights_only=True)["config"]
-    deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+    return path, config, EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+
+
+def assert_acts_in_a_short_episode(path: str, deployed: EnvConfig):
+    env = mav.make_env(deployed.replace(max_episode_steps=10))
+    try:
+        policy = make_policy("memory", env, checkpoint=path)
+        evaluate(env, policy, [1_000_000], with_reference=False, progress=False)
+    finally:
+        env.close()
+    assert policy.last_action[0] in range(7)
+
+
+def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
+    path, config, deployed, trained = shipped_memory_agent("search.pt")
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
     assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn.pt"
     assert config["dagger_focal_gamma"] == 2.0 and config["actor_sees_input"]  # scripts/make_search.sh's recipe
@@ -360,29 +375,15 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
         DQN_FCN_THRESHOLDS
     )  # it learnt on the box it acts on, with the verifier's bars of its teacher, the shipped DQN
     assert deployed == trained.replace(object_set="unseen") and deployed.image_size == FCN_IMAGE_SIZE
-    env = mav.make_env(deployed.replace(max_episode_steps=10))
-    try:
-        policy = make_policy("memory", env, checkpoint=path)
-        evaluate(env, policy, [1_000_000], with_reference=False, progress=False)
-    finally:
-        env.close()
-    assert policy.last_action[0] in range(7)
+    assert_acts_in_a_short_episode(path, deployed)
 
 
 def test_the_memory_agent_shipped_for_occluded_scenes_looks_over_and_acts_as_deployed():
-    path = os.path.join(ROOT, "agents", "weights", "search_occluded.pt")
-    config = torch.load(path, weights_only=True)["config"]
-    deployed, trained = EnvConfig.from_dict(config["env"]), EnvConfig.from_dict(config["trained_env"])
+    path, config, deployed, trained = shipped_memory_agent("search_occluded.pt")
     assert config["teacher"] == "servo" and config["teacher_looks_over"] and config["teacher_stays"]
     assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True, occluders=2)
     assert deployed == trained.replace(object_set="unseen").on_fcn_box()  # scripts/make_search_occluded.sh's
-    env = mav.make_env(deployed.replace(max_episode_steps=10))
-    try:
-        policy = make_policy("memory", env, checkpoint=path)
-        evaluate(env, policy, [1_000_000], with_reference=False, progress=False)
-    finally:
-        env.close()
-    assert policy.last_action[0] in range(7)
+    assert_acts_in_a_short_episode(path, deployed)
 
 
 def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, baseline_script):
