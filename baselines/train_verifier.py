@@ -2,6 +2,7 @@
 
     python baselines/train_verifier.py --fcn runs/fcn_v3_paper/best.pt \
         --data-dirs data/rollout128v3/train data/rollout128v3/train2 --run-dir runs/verifier
+    python baselines/train_verifier.py --init agents/weights/fcn.pt --epochs 4 --lr 3e-4 ...   # fine-tune the shipped one
 
 The candidates are what it will see: the regions the segmentation network (`--fcn`, frozen) marks on each
 rollout frame (its `verifier_regions` largest), each labelled "target" when most of its pixels lie on the
@@ -49,6 +50,10 @@ class Args:
     fcn: str = "runs/fcn/best.pt"
     """the segmentation network the verifier sits on, without a verifier (its weights are kept as they are;
     default: the one scripts/make_fcn.sh trains)"""
+    init: str = ""
+    """an FCN checkpoint with a verifier (e.g. agents/weights/fcn.pt) to fine-tune instead: its network is the one
+    the verifier sits on (--fcn is not read) and its verifier the starting point (tried on occluded scenes:
+    docs/task.md#occluders)"""
     data_dirs: list[str] = field(default_factory=lambda: ["data/rollout128v3/train"])
     """rollout-frame sets (`baselines/collect_rollout_frames.py`: they name what each pixel shows)"""
     run_dir: str = "runs/verifier"
@@ -181,6 +186,22 @@ def accuracy_by_threshold(logits: torch.Tensor, labels: torch.Tensor) -> dict[fl
     return {t: float(((p >= t).float() == labels).float().mean()) for t in THRESHOLDS}
 
 
+def network(args: Args) -> OneShotFCN:
+    """The checkpoint training starts from: the network alone (`--fcn`), or with `--init` a network and its verifier,
+    whose crop and regions must be the ones asked for."""
+    if not args.init:
+        fcn, _ = load_checkpoint(args.fcn)
+        if fcn.config.verifier_crop:
+            raise ValueError(f"{args.fcn} already has a verifier: give the segmentation network alone (or --init it)")
+        return fcn
+    start, _ = load_checkpoint(args.init)
+    found = (start.config.verifier_crop, start.config.verifier_regions)
+    if found != (args.crop, args.regions):
+        asked = (args.crop, args.regions)
+        raise ValueError(f"--init {args.init} has a verifier of crop, regions {found}, not --crop, --regions {asked}")
+    return start
+
+
 def main(args: Args):
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -188,9 +209,9 @@ def main(args: Args):
     if not 0 <= args.threshold < 1:
         raise ValueError(f"--threshold {args.threshold} must be in [0, 1) (0: the best on validation)")
     os.makedirs(args.run_dir, exist_ok=True)
-    fcn, _ = load_checkpoint(args.fcn)
-    if fcn.config.verifier_crop:
-        raise ValueError(f"{args.fcn} already has a verifier: give the segmentation network alone")
+    start = fcn = network(args)
+    if args.init:  # the network alone proposes the candidates
+        fcn = start.network_alone()
     sets = [load_segmentation_data(d) for d in args.data_dirs]
     for data_dir, data in zip(args.data_dirs, sets):
         if "objects" not in data:
@@ -220,7 +241,7 @@ def main(args: Args):
         verifier_cut_threshold=args.cut_threshold,
     )
     model = OneShotFCN(config)
-    model.load_state_dict(fcn.state_dict(), strict=False)
+    model.load_state_dict(start.state_dict(), strict=bool(args.init))  # a network alone lacks the verifier
     verifier = model.verifier
     optimizer = torch.optim.AdamW(verifier.parameters(), lr=args.lr, weight_decay=args.weight_decay)
     positive = float(labels[train_idx].mean())

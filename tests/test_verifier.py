@@ -1,6 +1,7 @@
 """The FCN's second stage: crops around candidate regions, which regions it keeps, and its checkpoint."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -166,3 +167,26 @@ def test_a_large_region_cut_by_the_border_needs_only_the_cut_bar():
     ]
     with pytest.raises(ValueError, match="verifier_cut_share=1.5 must be in"):
         FCNConfig(verifier_cut_share=1.5)
+
+
+def test_train_verifier_fine_tunes_a_shipped_verifier_from_its_weights(tmp_path, baseline_script):
+    from mani_active_vision.agents.fcn import WEIGHTS_PATH
+    from mani_active_vision.evaluation.rollout_frames import RolloutFramesConfig, collect_rollout_frames
+
+    train_verifier = baseline_script("train_verifier")
+    frames = tmp_path / "frames"
+    config = RolloutFramesConfig(sources=("servo_over_sky",), episodes_per_source=2, frame_stride=10, occluders=1)
+    collect_rollout_frames(str(frames), config, progress=False)
+    args = train_verifier.Args(
+        init=WEIGHTS_PATH, data_dirs=[str(frames)], run_dir=str(tmp_path / "run"), epochs=1, lr=1e-9, scales=(1,)
+    )
+    train_verifier.main(args)  # 2 episodes: scene seeds 405,000 (validation, every 10th) and 405,001 (training)
+    assert json.loads((tmp_path / "run" / "history.json").read_text())[0]["train_loss"] > 0
+    shipped, _ = load_checkpoint(WEIGHTS_PATH)
+    tuned, checkpoint = load_checkpoint(str(tmp_path / "run" / "best.pt"))
+    assert checkpoint["args"]["init"] == WEIGHTS_PATH
+    for name, value in shipped.state_dict().items():  # the network as it was, the verifier moved by ~lr only
+        atol = 1e-5 if name.startswith("verifier.") else 0.0
+        torch.testing.assert_close(tuned.state_dict()[name], value, atol=atol, rtol=0.0, msg=name)
+    with pytest.raises(ValueError, match="crop, regions"):
+        train_verifier.main(dataclasses.replace(args, crop=16))

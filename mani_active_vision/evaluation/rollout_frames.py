@@ -34,11 +34,15 @@ SOURCES = {
     "random_sky": ("random", "sky", "ground_truth"),
     "random_search": ("random", "search", "ground_truth"),
     "servo_fcn_sky": ("servo", "sky", "fcn"),
+    "servo_over_sky": ("servo", "sky", "ground_truth"),
 }
 """source name -> (policy, start pose, box source): the scripted servo, the paper's exploration handing over
-to it, and random directions from both start poses, on the ground-truth box; and the servo on the shipped
+to it, and random directions from both start poses, on the ground-truth box; the servo on the shipped
 FCN's box, which approaches whatever the FCN marks (hard negatives mined by the model: close-ups of the
-look-alikes it mistakes for the target). The test set uses the first four."""
+look-alikes it mistakes for the target); and, for scenes with occluders, the servo that looks over the panels
+(`LOOKS_OVER`), which comes up to targets a panel partly hides. The test set uses the first four."""
+LOOKS_OVER = ("servo_over_sky",)
+"""the sources whose servo looks over the panels and approaches from above (`ServoPolicy(look_over=True)`)"""
 RELATIONS = ("target", "identical twin", "same shape", "same colour", "other object")
 FLOOR, OCCLUDER, ROBOT = 0, 254, 255
 
@@ -154,7 +158,10 @@ def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: 
         )
         env = make_env(env_config)
         try:
-            policy = make_policy(policy_name, env, **({"then": "servo"} if policy_name == "explore" else {}))
+            kwargs = (
+                {"then": "servo"} if policy_name == "explore" else {"look_over": True} if name in LOOKS_OVER else {}
+            )
+            policy = make_policy(policy_name, env, **kwargs)
             parts = []
             seeds = [config.seed + 1000 * source + k for k in range(config.episodes_per_source)]
             for seed in tqdm(seeds, desc=f"frames {name}", disable=not progress):
