@@ -629,3 +629,27 @@ def test_the_look_over_lead_in_comes_before_the_orbit_and_follows_a_dqn_trained_
     assert explorer.update(seen).all()
     with pytest.raises(ValueError, match="look_over is the exploration's lead-in"):
         dqn.train(dqn.Args(look_over=True, explore=False), progress=False)
+
+
+def test_spl_breakdown_puts_each_episode_in_one_class_and_the_losses_add_up(baseline_script):
+    spl_breakdown = baseline_script("spl_breakdown")
+
+    def episode(seed, success, see, solved, spl):
+        return dict(seed=seed, success=success, steps_to_see=see, steps_to_success=solved, spl=spl)
+
+    fcn = [
+        episode(0, 0.0, 35.0, None, 0.0),  # not solved
+        episode(1, 1.0, 1.0, 54.0, 18 / 54),  # seen at the search pose, solved 33 steps later than on the ground truth
+        episode(2, 1.0, 41.0, 61.0, 26 / 61),  # the far side
+        episode(3, 1.0, 1.0, 20.0, 1.0),  # the rest: as fast as the ground truth's
+    ]
+    ground_truth = [
+        episode(0, 0.0, 35.0, None, None),
+        *(episode(s, 1.0, 1.0, n, None) for s, n in ((1, 21.0), (2, 60.0), (3, 20.0))),
+    ]
+    table = spl_breakdown.breakdown(fcn, ground_truth)
+    assert {name: count for name, (count, _) in table.items()} == {name: 1 for name in spl_breakdown.CLASSES}
+    assert table["a lost glimpse"][1] == pytest.approx((1 - 18 / 54) / 4)
+    assert sum(lost for _, lost in table.values()) == pytest.approx(1 - sum(e["spl"] for e in fcn) / 4)
+    with pytest.raises(ValueError, match="same seeds"):
+        spl_breakdown.breakdown(fcn, ground_truth[::-1])
