@@ -59,8 +59,9 @@ def breakdown(fcn: list[dict], ground_truth: list[dict]) -> dict[str, tuple[int,
         raise ValueError("the FCN box's evaluation has no SPL: run evaluate.py with its reference (the default)")
     table = {name: (0, 0.0) for name in CLASSES}
     for a, b in zip(fcn, ground_truth):
-        count, lost = table[episode_class(a, b)]
-        table[episode_class(a, b)] = (count + 1, lost + (1.0 - a["spl"]) / len(fcn))
+        name = episode_class(a, b)
+        count, lost = table[name]
+        table[name] = (count + 1, lost + (1.0 - a["spl"]) / len(fcn))
     return table
 
 
