@@ -158,9 +158,9 @@ def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: 
         )
         env = make_env(env_config)
         try:
-            kwargs = (
-                {"then": "servo"} if policy_name == "explore" else {"look_over": True} if name in LOOKS_OVER else {}
-            )
+            kwargs = {"then": "servo"} if policy_name == "explore" else {}
+            if name in LOOKS_OVER:
+                kwargs["look_over"] = True
             policy = make_policy(policy_name, env, **kwargs)
             parts = []
             seeds = [config.seed + 1000 * source + k for k in range(config.episodes_per_source)]
