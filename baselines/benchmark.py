@@ -7,8 +7,9 @@ rates taken side by side. Subjects:
 - our task, one env (`make_env`: new objects every episode, like the reference), 128² and 256²
   rgb+segmentation, and with `state` observations (the reward still renders the segmentation);
 - the agent loop: the env with the FCN's box (`box_source="fcn"`) and a Q-network choosing the actions;
-- 1, 2 and 4 worker processes (`make_vec_env`, 128²) with their share of the cores (`mani_active_vision.threads`),
-  and 1 and 2 with lavapipe's default of a render thread per core (as before; `LP_NUM_THREADS` = cores).
+- 1, 2 and 4 worker processes (`make_vec_env`, 128²) with their share of the cores and pinned to them
+  (`mani_active_vision.threads`); 2 not pinned (`pin_workers=False`); and 1 and 2 as before issue 14: lavapipe's
+  default of a render thread per core (`LP_NUM_THREADS` = cores), not pinned.
 Then: the first env ready in a fresh process, reset times, and RSS over `--resets` resets with the same
 models (`memory_resets.py`). Writes benchmark.md and benchmark.json to `--out`.
 
@@ -50,8 +51,10 @@ class Args:
     resolutions: tuple[int, ...] = (128, 256)
     workers: tuple[int, ...] = (1, 2, 4)
     """worker-process counts (128²)"""
+    unpinned_workers: tuple[int, ...] = (2,)
+    """worker-process counts also measured not pinned to their cores"""
     default_threads_workers: tuple[int, ...] = (1, 2)
-    """worker-process counts also measured with lavapipe's default threads"""
+    """worker-process counts also measured with lavapipe's default threads, not pinned"""
     resets: int = 1000
     """resets with the same models for the memory measurement (0 skips it)"""
     gpu_envs: tuple[int, ...] = (64, 256, 1024)
@@ -106,13 +109,13 @@ class Pool:
         self.env.close()
 
 
-def make_pool(num_workers: int, lavapipe_default: bool) -> Pool:
+def make_pool(num_workers: int, lavapipe_default: bool = False, pin: bool = True) -> Pool:
     config = EnvConfig(start_pose="search", image_size=128, box_source="none")
     if not lavapipe_default:
-        return Pool(make_vec_env(config, num_workers, backend="cpu"))
+        return Pool(make_vec_env(config, num_workers, backend="cpu", pin_workers=pin))
     os.environ["LP_NUM_THREADS"] = str(available_cores())  # a user's setting: it wins over the share
     try:
-        return Pool(make_vec_env(config, num_workers, backend="cpu"))
+        return Pool(make_vec_env(config, num_workers, backend="cpu", pin_workers=pin))
     finally:
         del os.environ["LP_NUM_THREADS"]
 
@@ -144,14 +147,16 @@ def subjects(args: Args) -> dict:
         "PyBullet reference, 128²",
     )
     for n in args.workers:
-        table[f"ours, {n} worker(s), 128² (total)"] = (
-            lambda n=n: make_pool(n, False),
+        table[f"ours, {n} worker(s), 128² (total)"] = (lambda n=n: make_pool(n), "ours, 1 worker(s), 128² (total)")
+    for n in args.unpinned_workers:
+        table[f"ours, {n} worker(s), not pinned (total)"] = (
+            lambda n=n: make_pool(n, pin=False),
             "ours, 1 worker(s), 128² (total)",
         )
     for n in args.default_threads_workers:
-        table[f"ours, {n} worker(s), lavapipe's default threads (total)"] = (
-            lambda n=n: make_pool(n, True),
-            "ours, 1 worker(s), lavapipe's default threads (total)",
+        table[f"ours, {n} worker(s), lavapipe's default threads, not pinned (total)"] = (
+            lambda n=n: make_pool(n, lavapipe_default=True, pin=False),
+            "ours, 1 worker(s), lavapipe's default threads, not pinned (total)",
         )
     return table
 

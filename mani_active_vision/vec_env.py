@@ -5,8 +5,9 @@ the task, `DiscreteDirections` and the config's box state) as a gymnasium `Vecto
 `make_vec_env(env_id, num_envs, wrappers=(...), **env_kwargs)` does the same for any registered env:
 - CPU (`backend="cpu"`, the default without CUDA): an `AsyncVectorEnv` of `num_envs` worker processes,
   each holding one `CPUGymWrapper`-wrapped env (ManiSkill's CPU backend takes `num_envs=1` only), with
-  lavapipe's render threads set from `num_envs` and the cores, and one torch thread
-  (`mani_active_vision.threads`; an `LP_NUM_THREADS` the user set wins). Observations, rewards and infos
+  lavapipe's render threads set from `num_envs` and the cores, one torch thread, and (`pin_workers`, where
+  the workers split the cores evenly) each worker's threads on its own cores (`mani_active_vision.threads`;
+  an `LP_NUM_THREADS` the user set wins). Observations, rewards and infos
   are numpy arrays with a leading env dimension.
 - GPU (`backend="gpu"`, the default with CUDA): one ManiSkill env with `num_envs` parallel scenes on the
   GPU physics backend, in ManiSkill's `ManiSkillVectorEnv`; observations are torch tensors on the GPU.
@@ -26,6 +27,7 @@ seeds from `s` in ManiSkill's way), so workers differ and a run reproduces. A wo
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import multiprocessing
 import multiprocessing.connection
@@ -37,7 +39,7 @@ import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
 from mani_active_vision.envs import ENV_ID, EnvConfig, wrap_env
-from mani_active_vision.threads import WorkerThreads, use_worker_threads, worker_threads
+from mani_active_vision.threads import WorkerThreads, pin_threads, use_worker_threads, worker_cores, worker_threads
 from mani_active_vision.vec_errors import WorkerCrashedError
 
 BACKENDS = ("auto", "cpu", "gpu", "ray")
@@ -51,11 +53,14 @@ def make_vec_env(
     backend: str = "auto",
     start_method: str = "forkserver",
     address: str | None = None,
+    pin_workers: bool = True,
     **env_kwargs,
 ) -> gym.vector.VectorEnv:
     """`num_envs` copies of `env_id` (made with `env_kwargs`), or of the project's env for an `EnvConfig`
     (then `wrappers` go around its box state), as one vector env; see the module docstring. `address`: the
-    Ray cluster of `backend="ray"` (None: a local Ray; "auto" or "ray://host:10001": join that cluster)."""
+    Ray cluster of `backend="ray"` (None: a local Ray; "auto" or "ray://host:10001": join that cluster).
+    `pin_workers` (CPU backend): each worker's threads on its own cores where the workers split them evenly
+    (False: leave them to the scheduler, e.g. when other busy processes share the cores)."""
     if isinstance(env_id, EnvConfig):
         if env_kwargs:
             raise ValueError(
@@ -86,8 +91,13 @@ def make_vec_env(
 
         env_fn = functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs)  # the actor sets threads
         return RayVectorEnv([env_fn] * num_envs, address=address)
-    env_fn = functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs, worker_threads(num_envs))
-    return CPUVectorEnv([env_fn] * num_envs, context=start_method, autoreset_mode=AutoresetMode.SAME_STEP)
+    threads = worker_threads(num_envs)
+    cores = worker_cores(num_envs) if pin_workers else [None] * num_envs
+    env_fns = [
+        functools.partial(_make_worker_env, env_id, tuple(wrappers), env_kwargs, dataclasses.replace(threads, cores=c))
+        for c in cores
+    ]
+    return CPUVectorEnv(env_fns, context=start_method, autoreset_mode=AutoresetMode.SAME_STEP)
 
 
 def _make_worker_env(
@@ -105,6 +115,8 @@ def _make_worker_env(
     env = CPUGymWrapper(gym.make(env_id, num_envs=1, **env_kwargs))
     for wrap in wrappers:
         env = wrap(env)
+    if threads is not None and multiprocessing.parent_process() is not None:
+        pin_threads(threads.cores)  # again: threads the renderer started may have set their own cores
     return env
 
 

@@ -15,7 +15,7 @@ import pytest
 
 import mani_active_vision as mav
 from mani_active_vision.envs import ENV_ID, EnvConfig
-from mani_active_vision.threads import WorkerThreads, worker_threads
+from mani_active_vision.threads import WorkerThreads, worker_cores, worker_threads
 from mani_active_vision.vec_env import CPUVectorEnv, WorkerCrashedError, make_vec_env
 
 
@@ -68,6 +68,25 @@ def test_workers_render_with_their_share_of_the_cores(pool):
         tasks = Path(f"/proc/{process.pid}/task")
         names = [(task / "comm").read_text() for task in tasks.iterdir()]  # lavapipe names them llvmpipe-<i>
         assert sum(name.startswith("llvmpipe") for name in names) == expected
+
+
+def test_each_worker_runs_on_its_own_cores(pool):
+    pool.reset(seed=0)
+    planned = worker_cores(2)  # on 2 cores: (0,) and (1,); None (not pinned) on one core
+    for process, cores in zip(pool.processes, planned):
+        expected = set(cores) if cores is not None else os.sched_getaffinity(0)
+        for task in Path(f"/proc/{process.pid}/task").iterdir():  # every thread, the render threads included
+            assert os.sched_getaffinity(int(task.name)) == expected
+
+
+def test_workers_are_pinned_only_where_they_split_the_cores_evenly():
+    assert worker_cores(2, cores=[0, 1]) == [(0,), (1,)]
+    assert worker_cores(2, cores=[3, 5]) == [(3,), (5,)]  # the process's own cores, e.g. under taskset
+    assert worker_cores(2, cores=range(8)) == [(0, 1, 2, 3), (4, 5, 6, 7)]
+    assert worker_cores(4, cores=[0, 1]) == [(0,), (1,), (0,), (1,)]  # two workers per core
+    assert worker_cores(3, cores=[0, 1]) == [None] * 3  # one core would hold two of the three
+    assert worker_cores(3, cores=range(8)) == [None] * 3
+    assert worker_cores(1, cores=[0, 1]) == [None]
 
 
 def test_a_user_set_render_thread_count_wins(monkeypatch):
