@@ -238,7 +238,8 @@ def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
         optimiser_step,
         lambda: model.load_state_dict(swapped_classes()),
         lambda: setattr(model, "head", nn.Conv2d(8, 2, 3, 1, 1).requires_grad_(False)),  # new tensors
-    ):
+        lambda: setattr(model.head, "bias", nn.Parameter(torch.tensor([9.0, -9.0]), requires_grad=False)),  # a new
+    ):  # parameter in a layer: background everywhere
         change()
         mask, new_session = fast_mask()
         assert new_session is not session
@@ -272,6 +273,7 @@ def test_onnxruntime_runs_the_verifier_as_torch_does_on_rendered_frames():
 
     mask, presence = agree()
     assert any(key[0] == "verifier" for key in model._runtime_cache[1])
+    assert not mask[0].any() and presence[0] == 0  # frame 0 has no candidate region: nothing in view
     scored = presence > 0  # the frames with candidate regions: some accepted, some rejected
     assert mask.any((1, 2)).sum() >= 2 and (scored & ~mask.any((1, 2))).any()
     with torch.no_grad():
