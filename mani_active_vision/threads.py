@@ -59,7 +59,10 @@ def worker_cores(num_workers: int, cores: Sequence[int] | None = None) -> list[t
     """The cores of each of `num_workers` workers on `cores` (default: this process's affinity): an equal block
     each where the workers divide the cores, one core per worker in turn where the cores divide the workers,
     else None for all (pinning some workers more tightly than others would make every step wait for the
-    crowded core). One worker is not pinned: its block would be all the cores anyway."""
+    crowded core). One worker is not pinned: its block would be all the cores anyway; nor is any where the
+    system has no affinity calls (they are Linux's)."""
+    if cores is None and not hasattr(os, "sched_getaffinity"):
+        return [None] * num_workers
     cores = sorted(os.sched_getaffinity(0) if cores is None else cores)
     if num_workers < 2 or not cores:
         return [None] * num_workers

@@ -89,6 +89,11 @@ def test_workers_are_pinned_only_where_they_split_the_cores_evenly():
     assert worker_cores(1, cores=[0, 1]) == [None]
 
 
+def test_no_pinning_without_the_affinity_calls(monkeypatch):
+    monkeypatch.delattr(os, "sched_getaffinity")  # as on macOS
+    assert worker_cores(2) == [None, None]
+
+
 def test_a_user_set_render_thread_count_wins(monkeypatch):
     monkeypatch.setenv("LP_NUM_THREADS", "3")
     assert worker_threads(1, cores=8) == WorkerThreads(render=3, torch=1)
