@@ -14,7 +14,7 @@ set wins, for every worker.
 Where the workers split the cores evenly, each worker's threads are also pinned to its own cores: a worker's
 step is a chain (its thread hands the frame to its render thread and waits), and left to the scheduler the
 other worker's threads preempt that chain, so every step waits for the slower of the two. Measured on 2 cores
-(docs/speed.md, `baselines/benchmark.py`, 6 quiet runs): 2 workers 1.78-1.93x one worker pinned, 1.54-1.66x not.
+(docs/speed.md, `baselines/benchmark.py`, 9 quiet runs): 2 workers 1.76-1.93x one worker pinned, 1.52-1.66x not.
 
     threads = worker_threads(num_workers)  # in the parent, when the workers are planned
     cores = worker_cores(num_workers)      # ... and the cores of each (None: not pinned)
