@@ -60,7 +60,7 @@ def make_vec_env(
     (then `wrappers` go around its box state), as one vector env; see the module docstring. `address`: the
     Ray cluster of `backend="ray"` (None: a local Ray; "auto" or "ray://host:10001": join that cluster).
     `pin_workers` (CPU backend): each worker's threads on its own cores where the workers split them evenly
-    (False: leave them to the scheduler, e.g. when other busy processes share the cores)."""
+    (False: leave them to the scheduler; pinned was no slower beside other busy processes, docs/speed.md)."""
     if isinstance(env_id, EnvConfig):
         if env_kwargs:
             raise ValueError(
