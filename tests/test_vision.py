@@ -238,8 +238,9 @@ def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
         optimiser_step,
         lambda: model.load_state_dict(swapped_classes()),
         lambda: setattr(model, "head", nn.Conv2d(8, 2, 3, 1, 1).requires_grad_(False)),  # new tensors
-        lambda: setattr(model.head, "bias", nn.Parameter(torch.tensor([9.0, -9.0]), requires_grad=False)),  # a new
-    ):  # parameter in a layer: background everywhere
+        # a new parameter in a layer (background everywhere): only a registration tells the weights' key
+        lambda: setattr(model.head, "bias", nn.Parameter(torch.tensor([9.0, -9.0]), requires_grad=False)),
+    ):
         change()
         mask, new_session = fast_mask()
         assert new_session is not session
