@@ -196,6 +196,12 @@ class Args:
     """in training, each step's box is replaced by "not seen" (zeros) with this probability, for the actor and
     the learner alike: the FCN's box misses about a third of the target's views (docs/vision.md), which a
     learner on the ground-truth box never meets (not in the paper; 0: off)"""
+    push_probability: float = 0.0
+    """in training, once a learner's episode first reaches success, with this probability `push_steps` forced steps
+    of one random direction follow (the learner is not asked; the steps are stored as its experience), then it acts
+    again: it meets the states a perturbation leaves, as `baselines/perturb.py` makes them (not in the paper; 0: off)"""
+    push_steps: int = 6
+    """forced steps of a training push (with push_probability)"""
     run_dir: str = "runs/dqn"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -514,6 +520,11 @@ def train(args: Args, progress: bool = True) -> dict:
         )
     if not 0 <= args.box_dropout < 1:
         raise ValueError(f"box_dropout={args.box_dropout} must be a probability in [0, 1)")
+    if not 0 <= args.push_probability <= 1 or args.push_steps < 1:
+        raise ValueError(
+            f"push_probability={args.push_probability}, push_steps={args.push_steps}: "
+            "a probability in [0, 1] and at least 1 step"
+        )
     if args.end_learning_rate < 0:
         raise ValueError(f"end_learning_rate={args.end_learning_rate} must be ≥ 0 (0: constant learning_rate)")
     if args.look_over and not args.explore:
@@ -542,6 +553,7 @@ def train(args: Args, progress: bool = True) -> dict:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     drop_rng = np.random.default_rng([args.seed, 1])  # its own stream: the other presets' draws are unchanged
+    push_rng = np.random.default_rng([args.seed, 2])  # likewise
     n = args.num_envs
     env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)  # 6, or 7 with env.stay_action
@@ -593,11 +605,16 @@ def train(args: Args, progress: bool = True) -> dict:
             losses, margins = [], []
             learner_steps, learner_return = np.zeros(n, int), np.zeros(n)
             running = np.ones(n, bool)  # the env's training episode goes on (a finished one idles to the round's end)
+            push_drawn, push_left = mixed.demo.copy(), np.zeros(n, int)  # one draw per learner episode
+            push_direction, pushed = np.zeros(n, int), np.zeros(n, bool)
             while running.any():
                 learner_acts = actor.update(obs).copy() if args.explore else np.ones(n, bool)
                 states = learner.state(obs)
                 action = actor.act(obs, info)
-                learner.last_action[mixed.demo] = action[mixed.demo]  # the state's last direction is the actor's
+                forced = push_left > 0
+                action, push_left = np.where(forced, push_direction, action), push_left - forced
+                acted = mixed.demo | forced  # the state's last direction is the one taken
+                learner.last_action[acted] = action[acted]
                 next_obs, reward, terminated, truncated, info = env.step(action)
                 final_obs, final_info = last_step(next_obs, info)  # before a vector env's same-step reset
                 if args.box_dropout:  # the same draw for the step's observation and its episode's last one
@@ -608,6 +625,11 @@ def train(args: Args, progress: bool = True) -> dict:
                     view = env_info(final_info, i)
                     trajectories[i].append(reward[i : i + 1], view)
                     ended = bool(terminated[i]) or (args.end_at_success and bool(first_env(view, "success")))
+                    if args.push_probability and learner_acts[i] and not push_drawn[i] and first_env(view, "success"):
+                        push_drawn[i] = True
+                        if push_rng.random() < args.push_probability:
+                            push_left[i], push_direction[i] = args.push_steps, push_rng.integers(len(DIRECTIONS))
+                            pushed[i] = True
                     done = ended or bool(truncated[i])
                     reward_now = learner_rewards[i](reward[i : i + 1], view, stayed=action[i] == STAY_INDEX)
                     learner_return[i] += reward_now
@@ -648,6 +670,7 @@ def train(args: Args, progress: bool = True) -> dict:
                         "learner_steps": int(learner_steps[i]),
                         "learner_return": float(learner_return[i]),
                         "demo": bool(mixed.demo[i]),
+                        "pushed": bool(pushed[i]),
                         "td_loss": float(np.mean(losses)) if losses else math.nan,
                         "margin_loss": float(np.mean(margins)) if margins else math.nan,
                         **metrics,

@@ -26,6 +26,7 @@ from mani_active_vision.agents.policies import (
     LOOK_OVER_TURN,
     POLICIES,
     RIGHT,
+    STAY_INDEX,
     UP,
     DQNPolicy,
     ExplorePolicy,
@@ -520,6 +521,38 @@ def test_box_dropout_hides_the_box_of_the_dropped_envs_only():
     assert dqn.drop_boxes(obs, np.array([False, False])) is obs
     with pytest.raises(ValueError, match=r"box_dropout=1.0 must be a probability in \[0, 1\)"):
         dqn.train(dqn.Args(box_dropout=1.0), progress=False)
+
+
+def test_a_training_push_forces_one_direction_after_the_first_success(tmp_path, monkeypatch):
+    taken, success = [], []
+    make_env = dqn.make_env
+
+    def recorded_env(config):  # the actions the env is given and the success they led to
+        env = make_env(config)
+        step = env.step
+
+        def record(action):
+            taken.append(int(np.asarray(action).reshape(-1)[0]))
+            result = step(action)
+            success.append(bool(np.asarray(result[-1]["success"]).reshape(-1)[0]))
+            return result
+
+        env.step = record
+        return env
+
+    monkeypatch.setattr(dqn, "make_env", recorded_env)
+    # the holding servo acts in the learner's place, so that the episode reaches success and stays there
+    monkeypatch.setattr(dqn.DemoOrLearner, "act", lambda self, obs, info: self.servo.act(obs, info))
+    env = EnvConfig(stay_action=True, with_mask_stats=True, max_episode_steps=60)
+    args = dqn.Args(**{**dqn.HOLD, "env": env}, episodes=1, push_probability=1.0, push_steps=4, run_dir=str(tmp_path))
+    (episode,) = dqn.train(args, progress=False)["history"]
+    assert episode["pushed"] and True in success
+    first = success.index(True)
+    push = taken[first + 1 : first + 5]
+    assert len(set(push)) == 1 and push[0] != STAY_INDEX  # four steps of one direction; the servo would stay
+    assert taken[first + 5 :] and STAY_INDEX in taken[first + 5 :]  # then the servo acts again
+    with pytest.raises(ValueError, match=r"push_probability=1.5, push_steps=6: a probability in \[0, 1\]"):
+        dqn.train(dqn.Args(push_probability=1.5), progress=False)
 
 
 def test_dqn_policy_with_last_action_sees_its_own_previous_direction():
