@@ -196,6 +196,10 @@ class Args:
     """in training, each step's box is replaced by "not seen" (zeros) with this probability, for the actor and
     the learner alike: the FCN's box misses about a third of the target's views (docs/vision.md), which a
     learner on the ground-truth box never meets (not in the paper; 0: off)"""
+    ensemble: int = 1
+    """Q-networks trained side by side on the same replay buffer and batches, each from its own initialisation
+    and against its own target network; the agent acts on their mean Q (`QNetwork(ensemble=K)`; not in the
+    paper; 1: one network)"""
     push_probability: float = 0.0
     """in training, once a learner's episode first reaches success, with this probability `push_steps` forced steps
     of one random direction follow (the learner is not asked; the steps are stored as its experience), then it acts
@@ -275,17 +279,19 @@ def td_loss(
     huber: bool = False,
 ) -> torch.Tensor:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
-    (`steps` = 1 where the batch does not say)."""
+    (`steps` = 1 where the batch does not say). An ensemble's members each learn against their own target
+    member (and, with double DQN, their own argmax), on the same batch; the loss is the mean over members."""
     with torch.no_grad():
-        next_q = target_network(batch["next_states"])
+        next_q = target_network.member_values(batch["next_states"])  # (K, B, actions)
         if double_dqn:
-            next_action = q_network(batch["next_states"]).argmax(-1, keepdim=True)
-            next_value = next_q.gather(1, next_action).squeeze(1)
+            next_action = q_network.member_values(batch["next_states"]).argmax(-1, keepdim=True)
+            next_value = next_q.gather(2, next_action).squeeze(2)
         else:
             next_value = next_q.max(-1).values
         discount = gamma ** batch["steps"] if "steps" in batch else gamma
         td_target = batch["rewards"] + discount * (1.0 - batch["terminated"]) * next_value
-    q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
+    taken = batch["actions"][None, :, None].expand(q_network.ensemble, -1, 1)
+    q = q_network.member_values(batch["states"]).gather(2, taken).squeeze(2)
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
 
 
@@ -559,9 +565,9 @@ def train(args: Args, progress: bool = True) -> dict:
     actions = num_actions(env)  # 6, or 7 with env.stay_action
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
-    q_network = QNetwork(state_dim, args.hidden_units, actions)
+    q_network = QNetwork(state_dim, args.hidden_units, actions, args.ensemble)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate)
-    target_network = QNetwork(state_dim, args.hidden_units, actions)
+    target_network = QNetwork(state_dim, args.hidden_units, actions, args.ensemble)
     target_network.load_state_dict(q_network.state_dict())
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself

@@ -18,17 +18,37 @@ from mani_active_vision.envs import EnvConfig
 
 
 class QNetwork(nn.Module):
-    """The paper's Q-network: state -> one hidden ReLU layer -> a Q-value per direction."""
+    """The paper's Q-network: state -> one hidden ReLU layer -> a Q-value per direction.
 
-    def __init__(self, state_dim: int, hidden_units: int = 20, num_actions: int = len(DIRECTIONS)):
+    With `ensemble` K > 1, K such networks side by side, each from its own initialisation: the Q-value is their
+    mean (what the agent acts on), `member_values` each one's (what each learns from; `agents.dqn.td_loss`).
+    One network's Q-values are noisy where success begins, and a greedy policy turns that noise into cycles
+    next to success; the mean of several is less so (docs/control.md §8)."""
+
+    def __init__(self, state_dim: int, hidden_units: int = 20, num_actions: int = len(DIRECTIONS), ensemble: int = 1):
         super().__init__()
-        self.state_dim, self.num_actions = state_dim, num_actions
-        self.network = nn.Sequential(
-            nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions)
-        )
+        if not (isinstance(ensemble, int) and ensemble >= 1):
+            raise ValueError(f"ensemble={ensemble!r} must be a positive integer (1: one network, the paper's)")
+        self.state_dim, self.num_actions, self.ensemble = state_dim, num_actions, ensemble
+
+        def network():
+            return nn.Sequential(nn.Linear(state_dim, hidden_units), nn.ReLU(), nn.Linear(hidden_units, num_actions))
+
+        if ensemble == 1:  # the paper's network, as every checkpoint before ensembles stores it
+            self.network = network()
+        else:
+            self.members = nn.ModuleList(network() for _ in range(ensemble))
+
+    def member_values(self, state: torch.Tensor) -> torch.Tensor:
+        """(K, N, actions): each member's Q-values (K = 1: the one network's)."""
+        if self.ensemble == 1:
+            return self.network(state)[None]
+        return torch.stack([member(state) for member in self.members])
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
-        return self.network(state)
+        if self.ensemble == 1:
+            return self.network(state)
+        return self.member_values(state).mean(0)
 
 
 def save_q_network(path: str, q_network: QNetwork, args) -> None:
@@ -48,7 +68,12 @@ def load_q_network(path: str) -> tuple[QNetwork, dict]:
     config = checkpoint["config"]
     if "env" not in config:
         raise ValueError(f"DQN checkpoint {path!r} has no env config: it predates EnvConfig; train it again")
-    q_network = QNetwork(config["state_dim"], config["hidden_units"], config.get("num_actions", len(DIRECTIONS)))
+    q_network = QNetwork(
+        config["state_dim"],
+        config["hidden_units"],
+        config.get("num_actions", len(DIRECTIONS)),
+        config.get("ensemble", 1),
+    )
     q_network.load_state_dict(checkpoint["state_dict"])
     return q_network.eval(), config
 

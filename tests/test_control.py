@@ -34,7 +34,7 @@ from mani_active_vision.agents.policies import (
     make_policy,
     policy_kwargs,
 )
-from mani_active_vision.agents.q_network import QNetwork, save_q_network
+from mani_active_vision.agents.q_network import QNetwork, load_q_network, save_q_network
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS, FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.cli import cli_with_preset_env
@@ -88,6 +88,28 @@ def test_td_target_uses_reward_discount_and_termination():
     }
     # targets 1 + 0.5 * 2 = 2 and 1 (terminated); Q = 0: squared errors 4 and 1
     assert dqn.td_loss(q_network, target_network, batch, gamma=0.5).item() == pytest.approx(2.5)
+
+
+@pytest.mark.parametrize("double_dqn", [False, True])
+def test_an_ensembles_members_each_learn_against_their_own_target_and_it_acts_on_their_mean(double_dqn, tmp_path):
+    torch.manual_seed(0)
+    ensemble, target = dqn.QNetwork(4, 8, ensemble=3), dqn.QNetwork(4, 8, ensemble=3)
+    alone = [dqn.QNetwork(4, 8) for _ in range(3)]  # each member as a network of its own
+    targets = [dqn.QNetwork(4, 8) for _ in range(3)]
+    for k in range(3):
+        alone[k].network.load_state_dict(ensemble.members[k].state_dict())
+        targets[k].network.load_state_dict(target.members[k].state_dict())
+    batch = _batch()
+    losses = [dqn.td_loss(alone[k], targets[k], batch, 0.9, double_dqn).item() for k in range(3)]
+    assert dqn.td_loss(ensemble, target, batch, 0.9, double_dqn).item() == pytest.approx(np.mean(losses))
+    values = torch.stack([net(batch["states"]) for net in alone])
+    assert torch.allclose(ensemble.member_values(batch["states"]), values)
+    assert torch.allclose(ensemble(batch["states"]), values.mean(0))
+    save_q_network(str(tmp_path / "q.pt"), ensemble, dqn.Args(hidden_units=8, ensemble=3))
+    loaded, config = load_q_network(str(tmp_path / "q.pt"))
+    assert config["ensemble"] == 3 and torch.equal(loaded(batch["states"]), ensemble(batch["states"]))
+    with pytest.raises(ValueError, match=r"ensemble=0 must be a positive integer"):
+        dqn.QNetwork(4, ensemble=0)
 
 
 def test_epsilon_schedule_is_linear_over_the_episodes():
@@ -211,7 +233,13 @@ def test_focus_held_is_the_share_in_success_from_the_first_success_on():
 def test_a_short_training_run_end_to_end(tmp_path):
     short = EnvConfig(max_episode_steps=40)  # short episodes: the same code, less time
     args = dqn.Args(
-        env=short, episodes=2, learning_starts=20, target_update_steps=50, end_learning_rate=1e-4, run_dir=str(tmp_path)
+        env=short,
+        episodes=2,
+        learning_starts=20,
+        target_update_steps=50,
+        end_learning_rate=1e-4,
+        ensemble=2,  # the other training runs here have one network
+        run_dir=str(tmp_path),
     )
     result = dqn.train(args, progress=False)
     assert len(result["history"]) == 2 and result["history"][1]["epsilon"] == pytest.approx(0.02)
@@ -222,6 +250,7 @@ def test_a_short_training_run_end_to_end(tmp_path):
     assert not math.isnan(result["history"][-1]["td_loss"])
     checkpoint = torch.load(result["checkpoint"], weights_only=True)
     assert checkpoint["config"]["hidden_units"] == 20 and checkpoint["config"]["state_dim"] == 4
+    assert checkpoint["config"]["ensemble"] == 2 and "members.1.2.bias" in checkpoint["state_dict"]
     assert EnvConfig.from_dict(checkpoint["config"]["env"]) == short  # the checkpoint carries its env
     text = (tmp_path / "random_explore_seed0" / "history.json").read_text()
     history = json.loads(text, parse_constant=lambda name: pytest.fail(f"history.json holds {name}: not JSON"))
