@@ -200,6 +200,9 @@ class Args:
     """Q-networks trained side by side on the same replay buffer and batches, each from its own initialisation
     and against its own target network; the agent acts on their mean Q (`QNetwork(ensemble=K)`; not in the
     paper; 1: one network)"""
+    ensemble_batches: bool = False
+    """with ensemble, each member learns from its own sampled batch (the same one for all: off), so that the members'
+    errors are less alike (as Bootstrapped DQN's data masks do; not in the paper)"""
     push_probability: float = 0.0
     """in training, once a learner's episode first reaches success, with this probability `push_steps` forced steps
     of one random direction follow (the learner is not asked; the steps are stored as its experience), then it acts
@@ -273,25 +276,34 @@ class NStepWindow:
 def td_loss(
     q_network: QNetwork,
     target_network: QNetwork,
-    batch: dict,
+    batch: dict | list[dict],
     gamma: float,
     double_dqn: bool = False,
     huber: bool = False,
 ) -> torch.Tensor:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
     (`steps` = 1 where the batch does not say). An ensemble's members each learn against their own target
-    member (and, with double DQN, their own argmax), on the same batch; the loss is the mean over members."""
+    member (and, with double DQN, their own argmax), on the one batch or on a list of one batch per member; the
+    loss is the mean over members."""
+    batches = batch if isinstance(batch, list) else [batch] * q_network.ensemble
+    losses = [
+        _member_td_loss(q_network.member(k), target_network.member(k), b, gamma, double_dqn, huber)
+        for k, b in enumerate(batches)
+    ]
+    return torch.stack(losses).mean()
+
+
+def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double_dqn: bool, huber: bool):
     with torch.no_grad():
-        next_q = target_network.member_values(batch["next_states"])  # (K, B, actions)
+        next_q = target_network(batch["next_states"])
         if double_dqn:
-            next_action = q_network.member_values(batch["next_states"]).argmax(-1, keepdim=True)
-            next_value = next_q.gather(2, next_action).squeeze(2)
+            next_action = q_network(batch["next_states"]).argmax(-1, keepdim=True)
+            next_value = next_q.gather(1, next_action).squeeze(1)
         else:
             next_value = next_q.max(-1).values
         discount = gamma ** batch["steps"] if "steps" in batch else gamma
         td_target = batch["rewards"] + discount * (1.0 - batch["terminated"]) * next_value
-    taken = batch["actions"][None, :, None].expand(q_network.ensemble, -1, 1)
-    q = q_network.member_values(batch["states"]).gather(2, taken).squeeze(2)
+    q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
     return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
 
 
@@ -465,14 +477,25 @@ class Selector:
             self.env.close()
 
 
-def update(q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict, args: Args) -> tuple[float, float]:
-    """One gradient step on a batch: the TD loss, plus DQfD's margin loss with `demo_margin`; returns both."""
+def update(
+    q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict | list[dict], args: Args
+) -> tuple[float, float]:
+    """One gradient step on a batch (or one per ensemble member): the TD loss, plus DQfD's margin loss with
+    `demo_margin` (on the ensemble's mean, the first batch); returns both."""
     loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
-    margin = margin_loss(q_network, batch, args.demo_margin) if args.demo_margin else torch.zeros(())
+    first = batch[0] if isinstance(batch, list) else batch
+    margin = margin_loss(q_network, first, args.demo_margin) if args.demo_margin else torch.zeros(())
     optimizer.zero_grad()
     (loss + margin).backward()
     optimizer.step()
     return loss.item(), margin.item()
+
+
+def sample(buffer: ReplayBuffer, args: Args, rng) -> dict | list[dict]:
+    """A batch, or with `ensemble_batches` one per ensemble member."""
+    if args.ensemble_batches:
+        return [buffer.sample(args.batch_size, rng) for _ in range(args.ensemble)]
+    return buffer.sample(args.batch_size, rng)
 
 
 def tensorboard_writer(run_dir: str):
@@ -656,9 +679,7 @@ def train(args: Args, progress: bool = True) -> dict:
                     global_step += 1  # the updates follow the env steps of the episodes, whatever the env count
                     if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
                         for _ in range(args.updates_per_step):
-                            losses_now = update(
-                                q_network, target_network, optimizer, buffer.sample(args.batch_size, rng), args
-                            )
+                            losses_now = update(q_network, target_network, optimizer, sample(buffer, args, rng), args)
                             losses.append(losses_now[0])
                             if args.demo_margin:
                                 margins.append(losses_now[1])

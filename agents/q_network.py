@@ -39,11 +39,13 @@ class QNetwork(nn.Module):
         else:
             self.members = nn.ModuleList(network() for _ in range(ensemble))
 
+    def member(self, k: int) -> nn.Module:
+        """The k-th network (k = 0: the one network)."""
+        return self.network if self.ensemble == 1 else self.members[k]
+
     def member_values(self, state: torch.Tensor) -> torch.Tensor:
-        """(K, N, actions): each member's Q-values (K = 1: the one network's)."""
-        if self.ensemble == 1:
-            return self.network(state)[None]
-        return torch.stack([member(state) for member in self.members])
+        """(K, N, actions): each member's Q-values."""
+        return torch.stack([self.member(k)(state) for k in range(self.ensemble)])
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         if self.ensemble == 1:

@@ -102,6 +102,9 @@ def test_an_ensembles_members_each_learn_against_their_own_target_and_it_acts_on
     batch = _batch()
     losses = [dqn.td_loss(alone[k], targets[k], batch, 0.9, double_dqn).item() for k in range(3)]
     assert dqn.td_loss(ensemble, target, batch, 0.9, double_dqn).item() == pytest.approx(np.mean(losses))
+    batches = [_batch(seed=k) for k in range(3)]  # ensemble_batches: a batch of its own per member
+    losses = [dqn.td_loss(alone[k], targets[k], batches[k], 0.9, double_dqn).item() for k in range(3)]
+    assert dqn.td_loss(ensemble, target, batches, 0.9, double_dqn).item() == pytest.approx(np.mean(losses))
     values = torch.stack([net(batch["states"]) for net in alone])
     assert torch.allclose(ensemble.member_values(batch["states"]), values)
     assert torch.allclose(ensemble(batch["states"]), values.mean(0))
@@ -239,6 +242,7 @@ def test_a_short_training_run_end_to_end(tmp_path):
         target_update_steps=50,
         end_learning_rate=1e-4,
         ensemble=2,  # the other training runs here have one network
+        ensemble_batches=True,
         run_dir=str(tmp_path),
     )
     result = dqn.train(args, progress=False)
