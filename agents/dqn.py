@@ -197,16 +197,17 @@ class Args:
     the learner alike: the FCN's box misses about a third of the target's views (docs/vision.md), which a
     learner on the ground-truth box never meets (not in the paper; 0: off)"""
     ensemble: int = 1
-    """Q-networks trained side by side on the same replay buffer and batches, each from its own initialisation
-    and against its own target network; the agent acts on their mean Q (`QNetwork(ensemble=K)`; not in the
-    paper; 1: one network)"""
+    """Q-networks trained side by side on the same replay buffer, each from its own initialisation and against
+    its own target network; the agent acts on their mean Q (`QNetwork(ensemble=K)`; measured in docs/control.md
+    §8, not adopted; not in the paper; 1: one network)"""
     ensemble_batches: bool = False
     """with ensemble, each member learns from its own sampled batch (the same one for all: off), so that the members'
     errors are less alike (as Bootstrapped DQN's data masks do; not in the paper)"""
     push_probability: float = 0.0
     """in training, once a learner's episode first reaches success, with this probability `push_steps` forced steps
     of one random direction follow (the learner is not asked; the steps are stored as its experience), then it acts
-    again: it meets the states a perturbation leaves, as `baselines/perturb.py` makes them (not in the paper; 0: off)"""
+    again: it meets the states a perturbation leaves, as `baselines/perturb.py` makes them (measured in
+    docs/control.md §8, not adopted; not in the paper; 0: off)"""
     push_steps: int = 6
     """forced steps of a training push (with push_probability)"""
     run_dir: str = "runs/dqn"
