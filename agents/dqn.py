@@ -45,7 +45,8 @@ episodes and seeds, the same updates per env step; 1, the default, is the env in
 `--track` also writes the training scalars to TensorBoard in the run's folder (`tensorboard --logdir runs/dqn`;
 TensorBoard is the optional extra `track`); the learning curve is a PNG either way.
 `select_every` validates the greedy agent now and then and saves the network that succeeded most, not the last
-(off by default; measured in docs/control.md §7).
+(off by default; measured in docs/control.md §7). `snapshots` keeps instead the mean Q of the network's last
+states (off by default; measured in docs/control.md §9).
 """
 
 from __future__ import annotations
@@ -210,6 +211,13 @@ class Args:
     docs/control.md §8, not adopted; not in the paper; 0: off)"""
     push_steps: int = 6
     """forced steps of a training push (with push_probability)"""
+    snapshots: int = 1
+    """1: the agent is the network as training ends. K > 1: the agent acts on the mean Q of the network as it was
+    at the last K of every `snapshot_every` training episodes, the last one included (kept as `QNetwork(ensemble=K)`):
+    one run's late swings averaged out, with no more training (training itself is unchanged; measured in
+    docs/control.md §9, not adopted; not in the paper)"""
+    snapshot_every: int = 10
+    """training episodes between the snapshots averaged (with snapshots)"""
     run_dir: str = "runs/dqn"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -492,6 +500,15 @@ def update(
     return loss.item(), margin.item()
 
 
+def snapshot_ensemble(q_network: QNetwork, snapshots: list[dict]) -> QNetwork:
+    """`Args.snapshots`: one network's saved states as the members of an ensemble that acts on their mean Q."""
+    hidden_units = q_network.member(0)[0].out_features
+    ensemble = QNetwork(q_network.state_dim, hidden_units, q_network.num_actions, len(snapshots))
+    for k, state in enumerate(snapshots):
+        ensemble.member(k).load_state_dict(state)
+    return ensemble
+
+
 def sample(buffer: ReplayBuffer, args: Args, rng) -> dict | list[dict]:
     """A batch, or with `ensemble_batches` one per ensemble member."""
     if args.ensemble_batches:
@@ -570,6 +587,20 @@ def train(args: Args, progress: bool = True) -> dict:
             f"select_every={args.select_every}, select_episodes={args.select_episodes}: "
             "select_every is 0 (off) or a positive episode count, with select_episodes >= 1"
         )
+    if args.snapshots < 1 or args.snapshot_every < 1 or args.snapshot_every % args.num_envs:
+        raise ValueError(
+            f"snapshots={args.snapshots}, snapshot_every={args.snapshot_every}: at least 1 each, snapshot_every a "
+            f"multiple of num_envs={args.num_envs} (snapshots are taken between rounds)"
+        )
+    if (args.snapshots - 1) * args.snapshot_every >= args.episodes:
+        raise ValueError(
+            f"snapshots={args.snapshots} every {args.snapshot_every} episodes reach before the first of the "
+            f"{args.episodes} training episodes: fewer snapshots or a shorter snapshot_every"
+        )
+    if args.snapshots > 1 and (args.ensemble > 1 or args.select_every):
+        raise ValueError(
+            "snapshots averages one network's last states: it cannot be combined with ensemble or select_every"
+        )
     if args.episodes > VALIDATION_OFFSET:
         raise ValueError(f"episodes={args.episodes} would reach the validation scenes: at most {VALIDATION_OFFSET}")
     # a margin outside [0, 1) is a ValueError here, before anything is built
@@ -612,6 +643,7 @@ def train(args: Args, progress: bool = True) -> dict:
     trajectories = [Trajectory() for _ in range(n)]
 
     selector = Selector(args)
+    snapshots = []  # (`Args.snapshots`) the network's states to average, oldest first
     history, global_step, start = [], 0, time.time()
     bar = tqdm(total=args.episodes, desc=f"DQN {os.path.basename(run_dir)}", disable=not progress)
     try:
@@ -712,6 +744,9 @@ def train(args: Args, progress: bool = True) -> dict:
             bar.update(n)
             if selector.due(first + n):
                 selector.check(q_network, first + n)
+            left = args.episodes - (first + n)
+            if args.snapshots > 1 and left % args.snapshot_every == 0 and left < args.snapshots * args.snapshot_every:
+                snapshots.append(copy.deepcopy(q_network.member(0).state_dict()))
             bar.set_postfix(
                 ret=f"{metrics['return']:.2f}", success=int(metrics["success"]), eps=f"{learner.epsilon[-1]:.3f}"
             )
@@ -721,6 +756,8 @@ def train(args: Args, progress: bool = True) -> dict:
         selector.close()
         if selector.best is not None:  # the validated network that succeeded most, not the last one
             q_network.load_state_dict(selector.best)
+        if args.snapshots > 1 and len(snapshots) == args.snapshots:  # (after Ctrl-C: the last network alone)
+            q_network = snapshot_ensemble(q_network, snapshots)
         if writer is not None:
             writer.close()
         checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far

@@ -56,7 +56,12 @@ class QNetwork(nn.Module):
 
 def save_q_network(path: str, q_network: QNetwork, args) -> None:
     """Weights + the run's arguments (a dataclass with `hidden_units` and a nested `env: EnvConfig`)."""
-    config = {**dataclasses.asdict(args), "state_dim": q_network.state_dim, "num_actions": q_network.num_actions}
+    config = {
+        **dataclasses.asdict(args),
+        "state_dim": q_network.state_dim,
+        "num_actions": q_network.num_actions,
+        "members": q_network.ensemble,  # trained side by side (args.ensemble) or snapshots of one (args.snapshots)
+    }
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     torch.save({"state_dict": q_network.state_dict(), "config": config}, path)
 
@@ -75,7 +80,7 @@ def load_q_network(path: str) -> tuple[QNetwork, dict]:
         config["state_dim"],
         config["hidden_units"],
         config.get("num_actions", len(DIRECTIONS)),
-        config.get("ensemble", 1),
+        config.get("members", config.get("ensemble", 1)),  # checkpoints before snapshots say ensemble only
     )
     q_network.load_state_dict(checkpoint["state_dict"])
     return q_network.eval(), config

@@ -293,6 +293,29 @@ def test_select_every_keeps_the_validated_network_that_succeeds_most(tmp_path, m
         dqn.train(dqn.Args(**base, select_every=-1, run_dir=str(tmp_path)), progress=False)
 
 
+def test_snapshots_average_the_last_networks_of_one_unchanged_training_run(tmp_path):
+    """With snapshots=K the checkpoint is an ensemble of the network at the last K of every snapshot_every
+    episodes: its last member is the network a plain run ends with (training is unchanged), an earlier one
+    differs (it learned in between), and the agent acts on their mean."""
+    base = dict(env=EnvConfig(max_episode_steps=15), episodes=4, learning_starts=5, target_update_steps=20)
+    snapped = dqn.train(dqn.Args(**base, snapshots=2, snapshot_every=2, run_dir=str(tmp_path / "s")), progress=False)
+    plain = dqn.train(dqn.Args(**base, run_dir=str(tmp_path / "p")), progress=False)
+    ensemble, config = load_q_network(snapped["checkpoint"])
+    last, _ = load_q_network(plain["checkpoint"])
+    assert ensemble.ensemble == 2 and config["members"] == 2 and config["snapshots"] == 2
+    assert all(torch.equal(a, b) for a, b in zip(ensemble.member(1).parameters(), last.parameters()))
+    assert not all(torch.equal(a, b) for a, b in zip(ensemble.member(0).parameters(), last.parameters()))
+    states = torch.randn(5, config["state_dim"])
+    assert torch.allclose(ensemble(states), (ensemble.member(0)(states) + last(states)) / 2)
+    for bad, match in [
+        (dict(snapshots=0), "snapshots=0, snapshot_every=10: at least 1 each"),
+        (dict(snapshots=3, snapshot_every=2), "reach before the first of the 4 training episodes"),
+        (dict(snapshots=2, snapshot_every=2, ensemble=2), "cannot be combined with ensemble or select_every"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            dqn.train(dqn.Args(**base, **bad, run_dir=str(tmp_path)), progress=False)
+
+
 def test_track_writes_the_training_scalars_to_tensorboard(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
