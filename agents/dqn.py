@@ -46,7 +46,7 @@ episodes and seeds, the same updates per env step; 1, the default, is the env in
 TensorBoard is the optional extra `track`); the learning curve is a PNG either way.
 `select_every` validates the greedy agent now and then and saves the network that succeeded most, not the last
 (off by default; measured in docs/control.md §7). `snapshots` keeps instead the mean Q of the network's last
-states (off by default; measured in docs/control.md §9).
+states (off by default; measured in docs/control.md §9). The shipped agent's preset is `hold_stay_decay`.
 """
 
 from __future__ import annotations
@@ -806,6 +806,10 @@ HOLD_STAY = {"hold_margin": 0.15, "avoid_refused": True, "env": EnvConfig(stay_a
 """Added to a preset: the seventh action `stay`, the mask's share and centroid offset in the state, time in
 success paid only well inside it, and no refused action repeated at once (docs/control.md §7)."""
 
+DECAY = {"end_learning_rate": 1e-4}
+"""Added to a preset: the learning rate decayed linearly from 1e-3 to 1e-4 over the training episodes, like ε, so
+that the last episodes move the network less (docs/control.md §7 and §9)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
@@ -814,8 +818,12 @@ PRESETS = {
     "hold_demo": ("hold, the servo acting its first 10 training episodes", Args(**HOLD, **DEMO)),
     "hold_demo_wide": ("hold_demo with 128 hidden units", Args(**HOLD, **DEMO, **WIDE)),
     "hold_stay": (
-        "hold_demo_wide that stays: stay, the mask stats, time in success paid well inside it (the shipped agent's)",
+        "hold_demo_wide that stays: stay, the mask stats, time in success paid well inside it",
         Args(**HOLD, **DEMO, **WIDE, **HOLD_STAY),
+    ),
+    "hold_stay_decay": (
+        "hold_stay with the learning rate decayed to 1e-4 over training, a steadier last network (the shipped agent's)",
+        Args(**HOLD, **DEMO, **WIDE, **HOLD_STAY, **DECAY),
     ),
 }
 

@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
-# Reproduce the shipped DQN (agents/weights/dqn.pt): train the chosen preset and seed (default hold_stay, seed 0:
-# the best of five on the FCN's box; 100 training episodes, ground-truth box, train objects; one process,
+# Reproduce the shipped DQN (agents/weights/dqn.pt): train the chosen preset and seed (default hold_stay_decay, seed
+# 0, chosen before training; 100 training episodes, ground-truth box, train objects; one process,
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
 # baselines/ship_dqn.py, with the verifier bars of envs.DQN_FCN_THRESHOLDS: 0.97 to acquire a region, 0.9 to
-# keep it), then evaluate it as deployed on 50 held-out episodes (docs/control.md §7).
+# keep it), then evaluate it as deployed on 50 held-out episodes (docs/control.md §9).
+# The hold_stay agent shipped before it (the shipped memory agent's teacher; docs/search.md) is remade by
+#   PRESET=hold_stay SEED=0 OUT=agents/weights/dqn_hold_stay.pt bash scripts/make_dqn.sh
 # The six-direction agent shipped before it (the teacher of the memory agent shipped before; docs/search.md) is remade by
 #   PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt SHIP_ARGS= bash scripts/make_dqn.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 PY=.venv/bin/python
-PRESET=${PRESET:-hold_stay}
+PRESET=${PRESET:-hold_stay_decay}
 SEED=${SEED:-0}
 OUT=${OUT:-agents/weights/dqn.pt}
 RUN=runs/make_dqn/${PRESET}_seed${SEED}

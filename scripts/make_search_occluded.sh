@@ -20,7 +20,7 @@ OUT=${OUT:-runs/search_over}
 $PY baselines/search_seeds.py --seeds $SEEDS --total-steps "$STEPS" --train.teacher servo --train.teacher-looks-over \
     --train.teacher-stays --train.env.stay-action --train.env.with-mask-stats --train.env.occluders 2 \
     --train.dagger-updates 32 --train.dagger-focal-gamma 2 --train.actor-sees-input \
-    --dqn-checkpoint agents/weights/dqn.pt --out-dir "$OUT" --figures-dir "$OUT/figures" "$@"
+    --dqn-checkpoint agents/weights/dqn_hold_stay.pt --out-dir "$OUT" --figures-dir "$OUT/figures" "$@"
 $PY baselines/ship_dqn.py --checkpoint "$OUT/seed$SHIP_SEED/agent.pt" --out agents/weights/search_occluded.pt
 $PY baselines/evaluate.py --policy memory --checkpoint agents/weights/search_occluded.pt --episodes 50 \
     --json outputs/search_occluded_shipped.json

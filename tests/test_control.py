@@ -475,9 +475,10 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         fcn_acquire_threshold=acquire,
         fcn_track_threshold=track,
     )
-    # the hold_stay preset: it stays well inside success, sees the mask stats, does not repeat a refused action
+    # the hold_stay_decay preset: it stays well inside success, sees the mask stats, does not repeat a refused
+    # action, and its learning rate was decayed
     assert deployed.stay_action and deployed.with_mask_stats and config["hold_margin"] == 0.15
-    assert config["avoid_refused"] and config["hidden_units"] == 128
+    assert config["avoid_refused"] and config["hidden_units"] == 128 and config["end_learning_rate"] == 1e-4
     env = mav.make_env(deployed.replace(max_episode_steps=25))
     try:
         policy = make_policy("explore", env, then="dqn", checkpoint=path)
