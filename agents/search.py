@@ -19,7 +19,7 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   sequences replayed with the same resets) and in evaluation;
 - the teacher (`teacher`): the scripted exploration handing over to a DQN checkpoint (by default the
   six-direction `agents/weights/dqn_hold_demo_wide.pt`, the agent shipped before `hold_stay`; the shipped
-  `dqn.pt`, which stays by itself, measured in docs/search.md), or the scripted servo; it
+  `search.pt` learns from `dqn_hold_stay.pt`, which stays by itself, measured in docs/search.md), or the scripted servo; it
   runs beside the learner and labels the learner's own states (its sweep turns on the learner's refusals,
   its hand-over latches on the learner's first sighting);
 - `algo=dagger` (Ross et al., 2011): the greedy learner acts on `num_envs` `make_vec_env` worker processes,
@@ -156,8 +156,8 @@ class Args:
     teacher: str = "agents/weights/dqn_hold_demo_wide.pt"
     """whose actions label the learner's states (and play the cloned episodes): servo (the scripted servo), or
     a DQN checkpoint (the scripted exploration handing over to that DQN, as it is deployed), e.g.
-    agents/weights/dqn_hold_demo_wide.pt (six directions, the box alone) or agents/weights/dqn.pt (`stay` and
-    the mask stats: needs env.stay_action and env.with_mask_stats)"""
+    agents/weights/dqn_hold_demo_wide.pt (six directions, the box alone) or agents/weights/dqn_hold_stay.pt or
+    dqn.pt (`stay` and the mask stats: need env.stay_action and env.with_mask_stats)"""
     teacher_looks_over: bool = False
     """with teacher=servo: the servo looks over the occluders (the LOOK_OVER lead-in, then it approaches from
     above: `ServoPolicy(look_over=True)`), for scenes with env.occluders (docs/task.md#occluders)"""

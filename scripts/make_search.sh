@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Reproduce the shipped memory agent (agents/weights/search.pt) and its measurements (docs/search.md): train
-# the memory agent (agents/search.py: DAgger from the scripted exploration handing over to the shipped DQN,
-# agents/weights/dqn.pt (scripts/make_dqn.sh), which stays by itself; with `stay` and the mask stats in its
-# input; on the FCN's box as deployed: 128², held through its misses, the verifier's bars envs.DQN_FCN_THRESHOLDS;
+# the memory agent (agents/search.py: DAgger from the scripted exploration handing over to the `hold_stay` DQN,
+# agents/weights/dqn_hold_stay.pt (shipped as dqn.pt until hold_stay_decay; scripts/make_dqn.sh), which stays by
+# itself (taught by the shipped hold_stay_decay dqn.pt it did no better: docs/search.md); with `stay` and the mask
+# stats in its input; on the FCN's box as deployed: 128², held through its misses, the verifier's bars envs.DQN_FCN_THRESHOLDS;
 # a focal imitation loss and a policy head that sees the current step's input beside the GRU's;
 # train objects, 2 worker processes, 20,000 env steps, ~7-9 min) for each seed, evaluate every seed and the
 # baselines on 50 held-out episodes (unseen objects, FCN box as deployed and ground-truth box), draw the learning
@@ -20,7 +21,7 @@ OUT=${OUT:-runs/search_skip}
 # the FCN's box as the shipped DQN is deployed (EnvConfig.on_fcn_box(DQN_FCN_THRESHOLDS)): size, held steps, bars
 read -r SIZE HOLD ACQUIRE TRACK < <($PY -c "from mani_active_vision import envs
 print(envs.FCN_IMAGE_SIZE, envs.FCN_BOX_HOLD_STEPS, *envs.DQN_FCN_THRESHOLDS)")
-TEACHER=(--train.teacher agents/weights/dqn.pt --dqn-checkpoint agents/weights/dqn.pt --train.env.stay-action
+TEACHER=(--train.teacher agents/weights/dqn_hold_stay.pt --dqn-checkpoint agents/weights/dqn_hold_stay.pt --train.env.stay-action
     --train.env.with-mask-stats --train.dagger-updates 32 --train.dagger-focal-gamma 2 --train.actor-sees-input)
 ON_FCN_BOX=(--train.env.box-source fcn --train.env.image-size "$SIZE" --train.env.box-hold-steps "$HOLD"
     --train.env.fcn-acquire-threshold "$ACQUIRE" --train.env.fcn-track-threshold "$TRACK" --fcn-thresholds "$ACQUIRE" "$TRACK")

@@ -369,7 +369,7 @@ def assert_acts_in_a_short_episode(path: str, deployed: EnvConfig):
 def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     path, config, deployed, trained = shipped_memory_agent("search.pt")
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
-    assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn.pt"
+    assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn_hold_stay.pt"
     assert config["dagger_focal_gamma"] == 2.0 and config["actor_sees_input"]  # scripts/make_search.sh's recipe
     assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True).on_fcn_box(
         DQN_FCN_THRESHOLDS
