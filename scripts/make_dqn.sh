@@ -6,7 +6,7 @@
 # keep it), then evaluate it as deployed on 50 held-out episodes (docs/control.md §9).
 # The hold_stay agent shipped before it (the shipped memory agent's teacher; docs/search.md) is remade by
 #   PRESET=hold_stay SEED=0 OUT=agents/weights/dqn_hold_stay.pt bash scripts/make_dqn.sh
-# The six-direction agent shipped before it (the teacher of the memory agent shipped before; docs/search.md) is remade by
+# The six-direction agent shipped before hold_stay (the teacher of an earlier memory agent; docs/search.md) is remade by
 #   PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt SHIP_ARGS= bash scripts/make_dqn.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
