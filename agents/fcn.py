@@ -107,6 +107,10 @@ class FCNConfig:
     up close is what approaching it reveals"""
     verifier_cut_threshold: float = 0.3
     """verifier probability a region cut by the border of `verifier_cut_share` or more needs"""
+    verifier_mirror: bool = False
+    """score each region also with both crops mirrored left-right and average the two logits (test-time
+    augmentation: training mirrors pairs together, so both views are in its distribution; one noisy score
+    of a small or cut region counts half)"""
 
     def __post_init__(self):
         if self.target_pooling not in TARGET_POOLINGS:
@@ -433,17 +437,23 @@ class OneShotFCN(nn.Module):
         candidates = candidate_crops(
             normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
         )
+        mirror = self.config.verifier_mirror
         encoded = self._per_target(
             "_cached_verifier_target",
             target,
             weights,
-            lambda: self.verifier.encoder(target_crops(target, target_pixels(target), crop)),
+            lambda: self.verifier.encoder(mirrored(target_crops(target, target_pixels(target), crop), mirror)),
         )
-        target_encoded, crops, logits = encoded[candidates["image"]], candidates["scene_crops"], None
+        images = candidates["image"]
+        if mirror:  # the target's two encodings, then every candidate's crop and its mirror image, in one batch
+            images = torch.cat([images, images + len(target)])
+        target_encoded, crops, logits = encoded[images], mirrored(candidates["scene_crops"], mirror), None
         if self._on_onnxruntime(runtime, scene_rgb.device):
             logits = fcn_runtime.verifier_logits(self, target_encoded, crops, weights, runtime == "onnxruntime")
         if logits is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
             logits = self.verifier.score(target_encoded, self.verifier.encoder(crops))
+        if mirror:
+            logits = logits.view(2, -1).mean(0)
         acquire, track = (t or self.config.verifier_threshold for t in thresholds)
         threshold = torch.full_like(logits, acquire)
         if previous is not None:
@@ -453,6 +463,11 @@ class OneShotFCN(nn.Module):
             threshold[cut] = threshold[cut].clamp(max=self.config.verifier_cut_threshold)
         mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
+
+
+def mirrored(crops: torch.Tensor, mirror: bool) -> torch.Tensor:
+    """`crops` (M, C, h, w), followed by the same crops mirrored left-right when `mirror` (2M)."""
+    return torch.cat([crops, crops.flip(-1)]) if mirror else crops
 
 
 def target_pixels(target: torch.Tensor) -> torch.Tensor:

@@ -75,6 +75,9 @@ class Args:
     """saved as `FCNConfig.verifier_cut_threshold`"""
     rotate: float = 0.0
     """degrees: both crops of a pair also turned by one random angle up to this (0: not turned)"""
+    mirror: bool = False
+    """saved as `FCNConfig.verifier_mirror`: at inference each region is also scored with both crops mirrored and
+    the two logits averaged (training and its validation are unchanged)"""
     epochs: int = 12
     batch_size: int = 128
     lr: float = 1e-3
@@ -239,6 +242,7 @@ def main(args: Args):
         verifier_regions=args.regions,
         verifier_cut_share=args.cut_share,
         verifier_cut_threshold=args.cut_threshold,
+        verifier_mirror=args.mirror,
     )
     model = OneShotFCN(config)
     model.load_state_dict(start.state_dict(), strict=bool(args.init))  # a network alone lacks the verifier

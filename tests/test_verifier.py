@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from mani_active_vision.agents.fcn import FCNConfig, OneShotFCN, load_checkpoint, normalize_images, save_checkpoint
+from mani_active_vision.agents.fcn import (
+    FCNConfig,
+    OneShotFCN,
+    load_checkpoint,
+    normalize_images,
+    save_checkpoint,
+    target_pixels,
+)
 from mani_active_vision.agents.verifier import (
     at_border,
     candidate_crops,
@@ -17,6 +24,7 @@ from mani_active_vision.agents.verifier import (
     region_boxes,
     regions,
     square_crops,
+    target_crops,
 )
 
 
@@ -167,6 +175,34 @@ def test_a_large_region_cut_by_the_border_needs_only_the_cut_bar():
     ]
     with pytest.raises(ValueError, match="verifier_cut_share=1.5 must be in"):
         FCNConfig(verifier_cut_share=1.5)
+
+
+def test_mirror_averages_the_logits_of_the_pair_and_of_both_crops_mirrored():
+    torch.manual_seed(0)
+    config = FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.5)
+    scene = torch.from_numpy(np.random.default_rng(0).integers(0, 256, (1, 64, 64, 3), dtype=np.uint8))
+    target = np.full((1, 64, 64, 3), 128, np.uint8)
+    target[:, 20:40, 24:34] = 200  # not symmetric: its mirror image is another crop
+    target = torch.from_numpy(target)
+    mask = torch.zeros(1, 64, 64, dtype=torch.bool)
+    mask[0, 10:30, 5:20] = True  # one candidate region
+    plain = OneShotFCN(config).eval()
+    with torch.no_grad():
+        plain.verifier.head[-1].weight.mul_(100.0)  # spread the untrained verifier's scores
+    mirrored = OneShotFCN(dataclasses.replace(config, verifier_mirror=True)).eval()
+    mirrored.load_state_dict(plain.state_dict())
+    crops = candidate_crops(normalize_images(scene), mask.numpy(), 4, 16)["scene_crops"]
+    target_crop = target_crops(normalize_images(target), target_pixels(normalize_images(target)), 16)
+    with torch.inference_mode():
+        logits = [plain.verifier(t, c)[0] for t, c in ((target_crop, crops), (target_crop.flip(-1), crops.flip(-1)))]
+        assert abs(float(logits[0] - logits[1])) > 1e-3  # the two views score differently
+        for model, expected in ((plain, logits[0]), (mirrored, (logits[0] + logits[1]) / 2)):
+            _, presence = model.verify(scene, normalize_images(target), mask, model._weights_key(), runtime="torch")
+            assert float(presence[0]) == pytest.approx(float(expected.sigmoid()), abs=1e-6)
+            _, on_onnx = model.verify(
+                scene, normalize_images(target), mask, model._weights_key(), runtime="onnxruntime"
+            )
+            assert float(on_onnx[0]) == pytest.approx(float(expected.sigmoid()), abs=1e-5)
 
 
 def test_train_verifier_fine_tunes_a_shipped_verifier_from_its_weights(tmp_path, baseline_script):
