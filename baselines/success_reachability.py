@@ -96,6 +96,7 @@ def main(args: Args):
         f"{int(((counts >= 1) & (counts <= 2)).sum())}, 3 or more {int((counts >= 3).sum())} placements"
     )
     print(f"without any: seeds {[seed for seed, n in task_views.items() if n == 0]}")
+    print(f"with 1-2 (a policy must hit them exactly): seeds {[seed for seed, n in task_views.items() if 1 <= n <= 2]}")
 
 
 if __name__ == "__main__":
