@@ -433,27 +433,10 @@ class OneShotFCN(nn.Module):
         encoding stay torch's)."""
         if not mask.any():  # no candidate region in any image (~40% of an episode's frames): nothing to verify
             return torch.zeros_like(mask, device=scene_rgb.device), torch.zeros(len(mask), device=scene_rgb.device)
-        crop = self.config.verifier_crop
         candidates = candidate_crops(
-            normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, crop
+            normalize_images(scene_rgb), mask.cpu().numpy(), self.config.verifier_regions, self.config.verifier_crop
         )
-        mirror = self.config.verifier_mirror
-        encoded = self._per_target(
-            "_cached_verifier_target",
-            target,
-            weights,
-            lambda: self.verifier.encoder(mirrored(target_crops(target, target_pixels(target), crop), mirror)),
-        )
-        images = candidates["image"]
-        if mirror:  # the target's two encodings, then every candidate's crop and its mirror image, in one batch
-            images = torch.cat([images, images + len(target)])
-        target_encoded, crops, logits = encoded[images], mirrored(candidates["scene_crops"], mirror), None
-        if self._on_onnxruntime(runtime, scene_rgb.device):
-            logits = fcn_runtime.verifier_logits(self, target_encoded, crops, weights, runtime == "onnxruntime")
-        if logits is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
-            logits = self.verifier.score(target_encoded, self.verifier.encoder(crops))
-        if mirror:
-            logits = logits.view(2, -1).mean(0)
+        logits = self.candidate_logits(target, candidates, weights, runtime)
         acquire, track = (t or self.config.verifier_threshold for t in thresholds)
         threshold = torch.full_like(logits, acquire)
         if previous is not None:
@@ -463,6 +446,29 @@ class OneShotFCN(nn.Module):
             threshold[cut] = threshold[cut].clamp(max=self.config.verifier_cut_threshold)
         mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
+
+    def candidate_logits(self, target: torch.Tensor, candidates: dict, weights: tuple, runtime: str = "auto"):
+        """The verifier's logits (M,) of `candidates` (`verifier.candidate_crops`) against normalised targets
+        (N, 3, h, w); with `verifier_mirror`, the mean of those of the crops as they are and mirrored. `weights`
+        is `_weights_key()` (keys the target crop's encoding); `runtime` as `predict_with_presence`'s."""
+        mirror = self.config.verifier_mirror
+        encoded = self._per_target(
+            "_cached_verifier_target",
+            target,
+            weights,
+            lambda: self.verifier.encoder(
+                mirrored(target_crops(target, target_pixels(target), self.config.verifier_crop), mirror)
+            ),
+        )
+        images = candidates["image"]
+        if mirror:  # the target's two encodings, then every candidate's crop and its mirror image, in one batch
+            images = torch.cat([images, images + len(target)])
+        target_encoded, crops, logits = encoded[images], mirrored(candidates["scene_crops"], mirror), None
+        if self._on_onnxruntime(runtime, target.device):
+            logits = fcn_runtime.verifier_logits(self, target_encoded, crops, weights, runtime == "onnxruntime")
+        if logits is None:  # the plain torch path (or the export failed under "auto": fcn_runtime warned)
+            logits = self.verifier.score(target_encoded, self.verifier.encoder(crops))
+        return logits.view(2, -1).mean(0) if mirror else logits
 
 
 def mirrored(crops: torch.Tensor, mirror: bool) -> torch.Tensor:

@@ -20,7 +20,7 @@ import tyro
 from tqdm import tqdm
 
 from mani_active_vision.agents.fcn import OneShotFCN, load_checkpoint, normalize_images, target_pixels
-from mani_active_vision.agents.verifier import candidate_crops, cut_regions, target_crops
+from mani_active_vision.agents.verifier import candidate_crops, cut_regions
 from mani_active_vision.boxes import roc_auc, silhouette, silhouette_iou, target_stats
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS
 from mani_active_vision.evaluation.rollout_frames import RELATIONS
@@ -55,9 +55,8 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
         if not len(found["image"]):
             continue
         pixels = target_pixels(target)
-        encoded = model.verifier.encoder(target_crops(target, pixels, crop))
-        probability = model.verifier.score(encoded[found["image"]], model.verifier.encoder(found["scene_crops"]))
-        rows["probability"] += probability.sigmoid().tolist()
+        probability = model.candidate_logits(target, found, model._weights_key(), runtime="torch").sigmoid()
+        rows["probability"] += probability.tolist()
         rows["cut_region"] += (
             cut_regions(found, masks.shape[1:], cut_share)
             if cut_share
