@@ -12,6 +12,7 @@ ActiveVisionFind-v0 is chosen from this table.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -23,6 +24,7 @@ from tqdm import tqdm
 import mani_active_vision  # noqa: F401
 from mani_active_vision.envs import ENV_ID, EnvConfig
 from mani_active_vision.evaluation.views import candidate_positions, meets, view_stats
+from mani_active_vision.json_io import save_json
 from mani_active_vision.occluders import points_inside
 from mani_active_vision.robots.orbit_controller import arm_points, camera_end, solve_ik
 
@@ -42,6 +44,9 @@ class Args:
     tolerances: tuple[float, ...] = (0.10, 0.15, 0.20)
     occluders: int = 0
     """panels per scene (the task's `occluders`): views with the camera end of the arm in a panel are left out"""
+    json: str = ""
+    """also write, per placement (seed), how many candidate views meet the task's criterion (to split an
+    evaluation's episodes by it)"""
     whole_arm: bool = False
     """also leave out views where any part of the arm (radius ~6 cm) passes through a panel (the controller
     checks only the camera end)"""
@@ -97,6 +102,9 @@ def main(args: Args):
     )
     print(f"without any: seeds {[seed for seed, n in task_views.items() if n == 0]}")
     print(f"with 1-2 (a policy must hit them exactly): seeds {[seed for seed, n in task_views.items() if 1 <= n <= 2]}")
+    if args.json:
+        save_json({"args": dataclasses.asdict(args), "views_in_success": task_views}, args.json)
+        print(f"views per placement written to {args.json}")
 
 
 if __name__ == "__main__":
