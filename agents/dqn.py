@@ -334,15 +334,19 @@ MIRRORED_ACTION = np.array([ACTIONS.index({"left": "right", "right": "left"}.get
 comes last, so the first six entries are the table of the six directions alone."""
 
 
-def mirror_state(state: np.ndarray, mask_stats: bool = False) -> np.ndarray:
+def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False) -> np.ndarray:
     """The state of the left-right mirrored situation: the box (x, y, w, h) of the mirrored image (zeros,
-    the unseen state, stay zeros), with `mask_stats` the mask's share and centroid offset (share, -dx, dy),
-    and, if present, the last action's one-hot (6 or 7 long) with left and right swapped."""
+    the unseen state, stay zeros); with `ee_pos` the camera's commanded position unchanged (the camera looks
+    outward from the base's vertical axis, so the mirror through that axis and the camera leaves it in place);
+    with `mask_stats` the mask's share and centroid offset (share, -dx, dy); and, if present, the last action's
+    one-hot (6 or 7 long) with left and right swapped."""
     x, y, w, h = state[:4]
     box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
-    stats = state[4:7] * np.array([1.0, -1.0, 1.0], np.float32) if mask_stats else state[4:4]
-    rest = state[4 + len(stats) :]
-    return np.concatenate([box, stats, rest[MIRRORED_ACTION[: len(rest)]]]).astype(np.float32)
+    position = state[4:7] if ee_pos else state[4:4]
+    start = 4 + len(position)
+    stats = state[start : start + 3] * np.array([1.0, -1.0, 1.0], np.float32) if mask_stats else state[4:4]
+    rest = state[start + len(stats) :]
+    return np.concatenate([box, position, stats, rest[MIRRORED_ACTION[: len(rest)]]]).astype(np.float32)
 
 
 SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
@@ -559,8 +563,6 @@ def train(args: Args, progress: bool = True) -> dict:
             f"hold_reward={args.hold_reward} pays for time in success, but end_at_success ends a training "
             "episode at its first success: turn end_at_success off (--no-end-at-success)"
         )
-    if args.mirror_augment and args.env.with_ee_pos:
-        raise ValueError("mirror_augment mirrors the box only: it cannot be combined with env.with_ee_pos")
     if args.mirror_augment and args.env.with_presence:
         raise ValueError(
             "mirror_augment reads the mask stats right after the box: it cannot be combined with env.with_presence"
@@ -701,10 +703,10 @@ def train(args: Args, progress: bool = True) -> dict:
                             buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
                             if args.mirror_augment:
                                 mirrored = (
-                                    mirror_state(s0, args.env.with_mask_stats),
+                                    mirror_state(s0, args.env.with_mask_stats, args.env.with_ee_pos),
                                     MIRRORED_ACTION[a0],
                                     discounted,
-                                    mirror_state(s_n, args.env.with_mask_stats),
+                                    mirror_state(s_n, args.env.with_mask_stats, args.env.with_ee_pos),
                                 )
                                 buffer.add(*mirrored, final, steps, mixed.demo[i])
                         learner_steps[i] += 1

@@ -81,6 +81,11 @@ def test_a_short_training_run_with_stay_stores_seven_actions(tmp_path):
     np.testing.assert_allclose(
         dqn.mirror_state(with_stats, mask_stats=True), [0.6, 0.2, 0.3, 0.4, 0.06, 0.2, 0.05, 0, 1, 0, 0, 0, 0, 0]
     )
+    with_position = np.concatenate([with_stats[:4], [0.5, -0.3, 0.4], with_stats[4:]])  # the camera's, after the box
+    np.testing.assert_allclose(
+        dqn.mirror_state(with_position, mask_stats=True, ee_pos=True),
+        [0.6, 0.2, 0.3, 0.4, 0.5, -0.3, 0.4, 0.06, 0.2, 0.05, 0, 1, 0, 0, 0, 0, 0],
+    )
 
 
 def test_the_planners_steps_are_the_envs_steps_and_reverse_exactly():
