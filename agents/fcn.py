@@ -447,10 +447,14 @@ class OneShotFCN(nn.Module):
         mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)
 
-    def candidate_logits(self, target: torch.Tensor, candidates: dict, weights: tuple, runtime: str = "auto"):
+    def candidate_logits(
+        self, target: torch.Tensor, candidates: dict, weights: tuple | None = None, runtime: str = "auto"
+    ) -> torch.Tensor:
         """The verifier's logits (M,) of `candidates` (`verifier.candidate_crops`) against normalised targets
         (N, 3, h, w); with `verifier_mirror`, the mean of those of the crops as they are and mirrored. `weights`
-        is `_weights_key()` (keys the target crop's encoding); `runtime` as `predict_with_presence`'s."""
+        is `_weights_key()` (keys the target crop's encoding; computed when not given); `runtime` as
+        `predict_with_presence`'s."""
+        weights = self._weights_key() if weights is None else weights
         mirror = self.config.verifier_mirror
         encoded = self._per_target(
             "_cached_verifier_target",

@@ -55,7 +55,7 @@ def region_scores(model: OneShotFCN, network: OneShotFCN, data: dict, batch: int
         if not len(found["image"]):
             continue
         pixels = target_pixels(target)
-        probability = model.candidate_logits(target, found, model._weights_key(), runtime="torch").sigmoid()
+        probability = model.candidate_logits(target, found, runtime="torch").sigmoid()
         rows["probability"] += probability.tolist()
         rows["cut_region"] += (
             cut_regions(found, masks.shape[1:], cut_share)
