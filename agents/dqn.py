@@ -74,10 +74,11 @@ from mani_active_vision.agents.policies import (
     box_array,
     in_success_with_margin,
     margin_limits,
+    mask_actions,
     num_actions,
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
-from mani_active_vision.directions import DIRECTIONS, action_names
+from mani_active_vision.directions import DIRECTIONS, action_names_for
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.json_io import save_json
@@ -172,6 +173,9 @@ class Args:
     with_last_action: bool = False
     """append a one-hot of the DQN's own previous direction to the state, so that it can tell a step
     forward from a step back in the same box (not in the paper)"""
+    learner_moves: str = "all"
+    """all: the learner takes every action of the env; fine: only the fine moves and stay (needs
+    env.fine_step_size; the exploration's sweep keeps the full step; not in the paper; docs/control.md §11)"""
     mirror_augment: bool = False
     """also store each transition mirrored left-right (box flipped, left and right swapped): the task is
     nearly symmetric, so this doubles the experience (not in the paper; box-only state)"""
@@ -289,24 +293,28 @@ def td_loss(
     gamma: float,
     double_dqn: bool = False,
     huber: bool = False,
+    allowed=None,
 ) -> torch.Tensor:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
-    (`steps` = 1 where the batch does not say). An ensemble's members each learn against their own target
-    member (and, with double DQN, their own argmax), on the one batch or on a list of one batch per member; the
-    loss is the mean over members."""
+    (`steps` = 1 where the batch does not say; a' among the `allowed` indices, if given). An ensemble's members
+    each learn against their own target member (and, with double DQN, their own argmax), on the one batch or on
+    a list of one batch per member; the loss is the mean over members."""
     batches = batch if isinstance(batch, list) else [batch] * q_network.ensemble
     losses = [
-        _member_td_loss(q_network.member(k), target_network.member(k), b, gamma, double_dqn, huber)
+        _member_td_loss(q_network.member(k), target_network.member(k), b, gamma, double_dqn, huber, allowed)
         for k, b in enumerate(batches)
     ]
     return torch.stack(losses).mean()
 
 
-def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double_dqn: bool, huber: bool):
+def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double_dqn: bool, huber: bool, allowed):
     with torch.no_grad():
         next_q = target_network(batch["next_states"])
+        if allowed is not None:
+            next_q = mask_actions(next_q, allowed)
         if double_dqn:
-            next_action = q_network(batch["next_states"]).argmax(-1, keepdim=True)
+            online = q_network(batch["next_states"])
+            next_action = (online if allowed is None else mask_actions(online, allowed)).argmax(-1, keepdim=True)
             next_value = next_q.gather(1, next_action).squeeze(1)
         else:
             next_value = next_q.max(-1).values
@@ -328,10 +336,12 @@ def margin_loss(q_network: QNetwork, batch: dict, margin: float) -> torch.Tensor
     return ((q + penalty).max(-1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
 
 
-ACTIONS = action_names(stay_action=True)
-MIRRORED_ACTION = np.array([ACTIONS.index({"left": "right", "right": "left"}.get(a, a)) for a in ACTIONS])
-"""The action that mirrors each action left-right: left <-> right, the others (stay too) unchanged. `stay`
-comes last, so the first six entries are the table of the six directions alone."""
+def mirrored_actions(count: int) -> np.ndarray:
+    """For an env with `count` actions (`action_names_for`), the action that mirrors each action left-right:
+    left <-> right (and their fine moves), the others (stay too) unchanged."""
+    names = action_names_for(count)
+    swap = {"left": "right", "right": "left", "left_fine": "right_fine", "right_fine": "left_fine"}
+    return np.array([names.index(swap.get(name, name)) for name in names])
 
 
 def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False) -> np.ndarray:
@@ -339,14 +349,15 @@ def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = Fal
     the unseen state, stay zeros); with `ee_pos` the camera's commanded position unchanged (the camera looks
     outward from the base's vertical axis, so the mirror through that axis and the camera leaves it in place);
     with `mask_stats` the mask's share and centroid offset (share, -dx, dy); and, if present, the last action's
-    one-hot (6 or 7 long) with left and right swapped."""
+    one-hot (as long as the action set: 6, 7, 12 or 13) with left and right swapped."""
     x, y, w, h = state[:4]
     box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
     position = state[4:7] if ee_pos else state[4:4]
     start = 4 + len(position)
     stats = state[start : start + 3] * np.array([1.0, -1.0, 1.0], np.float32) if mask_stats else state[4:4]
-    rest = state[start + len(stats) :]
-    return np.concatenate([box, position, stats, rest[MIRRORED_ACTION[: len(rest)]]]).astype(np.float32)
+    rest = state[start + len(stats) :]  # the last action's one-hot, if any
+    last_action = rest[mirrored_actions(len(rest))] if len(rest) else rest
+    return np.concatenate([box, position, stats, last_action]).astype(np.float32)
 
 
 SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
@@ -473,6 +484,7 @@ class Selector:
             q_network=q_network,
             with_last_action=self.args.with_last_action,
             avoid_refused=self.args.avoid_refused,
+            learner_moves=self.args.learner_moves,
         )
         policy = ExplorePolicy(self.env, then=greedy, look_over=self.args.look_over) if self.args.explore else greedy
         episodes = evaluate(self.env, policy, self.seeds, with_reference=False, progress=False)
@@ -491,11 +503,12 @@ class Selector:
 
 
 def update(
-    q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict | list[dict], args: Args
+    q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict | list[dict], args: Args, allowed=None
 ) -> tuple[float, float]:
-    """One gradient step on a batch (or one per ensemble member): the TD loss, plus DQfD's margin loss with
-    `demo_margin` (on the ensemble's mean, the first batch); returns both."""
-    loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
+    """One gradient step on a batch (or one per ensemble member): the TD loss (bootstrapping from the `allowed`
+    actions, if given), plus DQfD's margin loss with `demo_margin` (on the ensemble's mean, the first batch);
+    returns both."""
+    loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber, allowed)
     first = batch[0] if isinstance(batch, list) else batch
     margin = margin_loss(q_network, first, args.demo_margin) if args.demo_margin else torch.zeros(())
     optimizer.zero_grad()
@@ -619,7 +632,8 @@ def train(args: Args, progress: bool = True) -> dict:
     push_rng = np.random.default_rng([args.seed, 2])  # likewise
     n = args.num_envs
     env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
-    actions = num_actions(env)  # 6, or 7 with env.stay_action
+    actions = num_actions(env)  # 6, 7 with env.stay_action, 12 or 13 with env.fine_step_size
+    mirror_action = mirrored_actions(actions)
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
     q_network = QNetwork(state_dim, args.hidden_units, actions, args.ensemble)
@@ -629,7 +643,14 @@ def train(args: Args, progress: bool = True) -> dict:
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
     # the ε-greedy learner acts without avoid_refused: it is for the trained agent (measured: docs/control.md §7)
-    learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
+    learner = DQNPolicy(
+        env,
+        q_network=q_network,
+        seed=args.seed,
+        with_last_action=args.with_last_action,
+        learner_moves=args.learner_moves,
+    )
+    allowed = None if len(learner.allowed) == actions else learner.allowed
     servo = ServoPolicy(  # after the exploration's hand-over the lead-in is done: the servo does not redo it
         env,
         hold=actions > len(DIRECTIONS),
@@ -704,7 +725,7 @@ def train(args: Args, progress: bool = True) -> dict:
                             if args.mirror_augment:
                                 mirrored = (
                                     mirror_state(s0, args.env.with_mask_stats, args.env.with_ee_pos),
-                                    MIRRORED_ACTION[a0],
+                                    mirror_action[a0],
                                     discounted,
                                     mirror_state(s_n, args.env.with_mask_stats, args.env.with_ee_pos),
                                 )
@@ -714,7 +735,9 @@ def train(args: Args, progress: bool = True) -> dict:
                     global_step += 1  # the updates follow the env steps of the episodes, whatever the env count
                     if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
                         for _ in range(args.updates_per_step):
-                            losses_now = update(q_network, target_network, optimizer, sample(buffer, args, rng), args)
+                            losses_now = update(
+                                q_network, target_network, optimizer, sample(buffer, args, rng), args, allowed
+                            )
                             losses.append(losses_now[0])
                             if args.demo_margin:
                                 margins.append(losses_now[1])

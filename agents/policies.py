@@ -3,7 +3,7 @@
 A policy is built by `make_policy(name, env, **kwargs)` on the env it will act in: a `DiscreteDirections`
 env wrapped in `BoxState` (ground-truth or FCN box; batched or not), and then:
 - `policy.reset(obs, info)` at the start of every episode (for batched envs: whenever any env resets),
-- `policy.act(obs, info) -> np.ndarray` of direction indices (N,) int64, one per env.
+- `policy.act(obs, info) -> np.ndarray` of action indices (N,) int64, one per env (`action_names_for`).
 `obs` and `info` are what the wrapped env returned; `obs[..., :4]` is the target's box (x, y, w, h),
 zeros when the target is not seen. Names: see POLICIES.
 
@@ -29,7 +29,7 @@ import torch
 
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import STATE_DIMS, features, load_agent
-from mani_active_vision.directions import DIRECTIONS, STAY, action_names
+from mani_active_vision.directions import DIRECTIONS, FINE, STAY, action_names, action_names_for
 
 LEFT, RIGHT, FORWARD, BACKWARD, UP, DOWN = (
     DIRECTIONS.index(d) for d in ("left", "right", "forward", "backward", "up", "down")
@@ -46,7 +46,8 @@ def box_array(obs) -> np.ndarray:
 
 
 def num_actions(env) -> int:
-    """How many discrete actions the env takes: 6 directions, or 7 with `stay` (batched or not)."""
+    """How many discrete actions the env takes: 6 directions, 7 with `stay`, 12 or 13 with the fine moves
+    (`action_names_for`; batched or not)."""
     space = env.action_space
     return int(space.n) if isinstance(space, gym.spaces.Discrete) else int(space.nvec[0])
 
@@ -89,6 +90,29 @@ def one_hot(actions: np.ndarray, num_actions: int) -> np.ndarray:
     """(N, num_actions) float32: a DQN's previous action in its state; zeros where there is none (-1) or it is
     not one of the network's actions (a six-direction DQN's `stay`)."""
     return (np.asarray(actions)[:, None] == np.arange(num_actions)).astype(np.float32)
+
+
+LEARNER_MOVES = ("all", "fine")
+
+
+def learner_actions(count: int, moves: str = "all") -> np.ndarray:
+    """The indices a DQN may take in an env with `count` actions: `all` of them, or with `fine` only the fine
+    moves and `stay` (a learner that acts after the exploration's hand-over leaves the full steps to the sweep)."""
+    if moves not in LEARNER_MOVES:
+        raise ValueError(f"learner_moves={moves!r} is not one of: {', '.join(LEARNER_MOVES)}")
+    names = action_names_for(count)
+    if moves == "all":
+        return np.arange(count)
+    if FINE[0] not in names:
+        raise ValueError("learner_moves='fine' needs the fine moves: make the env with fine_step_size > 0")
+    return np.array([i for i, name in enumerate(names) if name in FINE or name == STAY])
+
+
+def mask_actions(q: torch.Tensor, allowed) -> torch.Tensor:
+    """`q` (N, actions) with every action not in `allowed` (indices) at -inf: argmax and max never take them."""
+    keep = torch.zeros(q.shape[-1], dtype=torch.bool)
+    keep[torch.as_tensor(allowed)] = True
+    return q.masked_fill(~keep, -torch.inf)
 
 
 def rule_out_refused(q: torch.Tensor, refused: np.ndarray, last_action: np.ndarray) -> torch.Tensor:
@@ -191,7 +215,10 @@ class ServoPolicy:
     the camera is past the panel. It also backs off a box that fills the view, does not repeat a refused step
     (it goes forward after a refused up or down, else up) and does not turn back across the target at once: close up,
     one orbit step moves the box by more than the centring tolerance (docs/task.md#occluders). `lead_in=False`
-    leaves the lead-in out, for a servo that takes over after an exploration that has looked over already."""
+    leaves the lead-in out, for a servo that takes over after an exploration that has looked over already.
+
+    With `fine` it serves with the fine moves where the env has them (env.fine_step_size; its sweep keeps the
+    full step): a view in success is often one or two of the full step's lattice (docs/control.md §11)."""
 
     def __init__(
         self,
@@ -202,8 +229,11 @@ class ServoPolicy:
         hold_limits: tuple[float, float] = (0.0, math.inf),
         look_over: bool = False,
         lead_in: bool | None = None,
+        fine: bool = True,
     ):
         self.num_envs = env.unwrapped.num_envs
+        names = action_names_for(num_actions(env))
+        self.fine_offset = names.index(FINE[0]) if fine and FINE[0] in names else 0  # FINE is in DIRECTIONS' order
         self.center_tol = center_tol
         lead_in = look_over if lead_in is None else lead_in
         first = DIRECTIONS.index(first_sweep)
@@ -243,6 +273,8 @@ class ServoPolicy:
             action[again] = np.where(np.isin(action[again], (UP, DOWN)), FORWARD, UP)
         action[~served] = sweep[~served]
         self.last_action[:] = action
+        if self.fine_offset:
+            action[served] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
@@ -295,7 +327,8 @@ class DQNPolicy:
     start of an episode): `state(obs)`. The env's action count (6, or 7 with `stay`) must be the network's.
     With `avoid_refused` (read from the checkpoint's config too) a greedy action the controller has just refused
     is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
-    repeat it to the episode's end (docs/control.md §7)."""
+    repeat it to the episode's end (docs/control.md §7). With `learner_moves="fine"` (read from the checkpoint's
+    config too) it takes only the fine moves and `stay` (`learner_actions`; docs/control.md §11)."""
 
     def __init__(
         self,
@@ -306,6 +339,7 @@ class DQNPolicy:
         q_network=None,
         with_last_action: bool = False,
         avoid_refused: bool = False,
+        learner_moves: str = "all",
     ):
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
@@ -328,6 +362,7 @@ class DQNPolicy:
                 f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
                 f"(with_ee_pos={self.config.get('env', {}).get('with_ee_pos')}), the env gives {state_dim}"
             )
+        self.allowed = learner_actions(self.num_actions, self.config.get("learner_moves", learner_moves))
         self.epsilon = epsilon
         self.rng = np.random.default_rng(seed)
 
@@ -344,11 +379,16 @@ class DQNPolicy:
     def act(self, obs, info) -> np.ndarray:
         with torch.no_grad():
             q = self.q_network(torch.as_tensor(self.state(obs)))
+        if len(self.allowed) < self.num_actions:
+            q = mask_actions(q, self.allowed)
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
         action = q.argmax(-1).numpy().astype(np.int64)
         explore = self.rng.random(self.num_envs) < self.epsilon
-        action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
+        if len(self.allowed) < self.num_actions:
+            action[explore] = self.rng.choice(self.allowed, size=int(explore.sum()))
+        else:
+            action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action
         return action
 

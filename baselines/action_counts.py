@@ -53,7 +53,8 @@ def main(args: Args) -> dict:
     env = make_env(args.env)
     try:
         policy = make_policy("explore", env, then="dqn", checkpoint=args.checkpoint, seed=args.seed)
-        names, learner, counts = action_names(args.env.stay_action), policy.then, collections.Counter()
+        names = action_names(args.env.stay_action, args.env.fine_step_size > 0)
+        learner, counts = policy.then, collections.Counter()
         learner_act, episode_actions = learner.act, []
         cycles = collections.Counter()  # (succeeded, ends in a cycle) -> episodes
 

@@ -1,5 +1,5 @@
-"""The paper's six discrete camera moves over `pd_ee_delta_pos` (docs/design.md §3, the orbit frame), and an
-optional seventh action, `stay`."""
+"""The paper's six discrete camera moves over `pd_ee_delta_pos` (docs/design.md §3, the orbit frame), an
+optional seventh action, `stay`, and optionally the six moves again at a finer step."""
 
 from __future__ import annotations
 
@@ -18,17 +18,48 @@ STAY = "stay"
 `sky` start it goes to the search pose like any first step (docs/design.md §3)."""
 
 
-def action_names(stay_action: bool = False) -> tuple[str, ...]:
-    """The actions' names in index order: the six directions, then `stay` if enabled (so the six keep
-    their indices either way)."""
-    return (*DIRECTIONS, STAY) if stay_action else DIRECTIONS
+FINE = tuple(f"{name}_fine" for name in DIRECTIONS)
+"""The optional fine moves (not the paper's): the six directions at the env's `fine_step_size`, so that the
+policy that takes over from the exploration can land on a view in success that the full step passes over
+(docs/control.md §11)."""
 
 
-def direction_deltas(pos: torch.Tensor, step: float, pitch: float, names: tuple[str, ...] = DIRECTIONS) -> torch.Tensor:
-    """The Cartesian steps (N, len(names), 3) of the named actions from commanded positions `pos` (N, 3).
+def action_names(stay_action: bool = False, fine_actions: bool = False) -> tuple[str, ...]:
+    """The actions' names in index order: the six directions, then `stay` if enabled, then the six fine moves
+    if enabled (so the six, and `stay`, keep their indices either way)."""
+    return (*DIRECTIONS, *((STAY,) if stay_action else ()), *(FINE if fine_actions else ()))
+
+
+def action_names_for(count: int) -> tuple[str, ...]:
+    """The action set an env with `count` actions takes: 6 directions, 7 with `stay`, 12 with the fine moves,
+    13 with both."""
+    sets = {len(action_names(stay, fine)): action_names(stay, fine) for stay in (False, True) for fine in (False, True)}
+    if count not in sets:
+        raise ValueError(f"no action set has {count} actions: valid counts are {sorted(sets)}")
+    return sets[count]
+
+
+def direction_deltas(
+    pos: torch.Tensor, step: float, pitch: float, names: tuple[str, ...] = DIRECTIONS, fine_step: float = 0.0
+) -> torch.Tensor:
+    """The Cartesian steps (N, len(names), 3) of the named actions from commanded positions `pos` (N, 3); the
+    fine moves (`FINE`) are `fine_step` long.
 
     Orbit steps are arcs of length `step` at the position's radius and height, so that a left step and a
     right step return exactly; forward/backward follow the viewing axis at the position's azimuth."""
+    moves = _moves(pos, step, pitch)
+    if any(name in FINE for name in names):
+        if fine_step <= 0:
+            raise ValueError(f"the fine moves {FINE} need fine_step > 0, got {fine_step}")
+        moves.update({f"{name}_fine": move for name, move in _moves(pos, fine_step, pitch).items() if name != STAY})
+    unknown = [n for n in names if n not in moves]
+    if unknown:
+        raise ValueError(f"unknown action names {unknown}: valid are {tuple(moves)}")
+    return torch.stack([moves[name] for name in names], 1)
+
+
+def _moves(pos: torch.Tensor, step: float, pitch: float) -> dict[str, torch.Tensor]:
+    """Each of the six directions' (and `stay`'s) Cartesian step (N, 3) of length `step`."""
     radius = torch.linalg.norm(pos[:, :2], dim=-1).clamp(min=1e-6)
     azimuth = torch.atan2(pos[:, 1], pos[:, 0])
 
@@ -40,7 +71,7 @@ def direction_deltas(pos: torch.Tensor, step: float, pitch: float, names: tuple[
     forward = step * camera_forward(azimuth, pitch)
     up = torch.zeros_like(pos)
     up[:, 2] = step
-    moves = dict(
+    return dict(
         left=orbit(step / radius),
         right=orbit(-step / radius),
         forward=forward,
@@ -49,28 +80,28 @@ def direction_deltas(pos: torch.Tensor, step: float, pitch: float, names: tuple[
         down=-up,
         stay=torch.zeros_like(pos),
     )
-    unknown = [n for n in names if n not in moves]
-    if unknown:
-        raise ValueError(f"unknown action names {unknown}: valid are {tuple(moves)}")
-    return torch.stack([moves[name] for name in names], 1)
 
 
 class DiscreteDirections(gym.ActionWrapper):
     """`Discrete(6)` actions (`MultiDiscrete` for batched envs), indices into `DIRECTIONS`; with
-    `stay_action`, `Discrete(7)`: index 6 is `stay` (`action_names`).
+    `stay_action`, `Discrete(7)`: index 6 is `stay`; with `fine_step` > 0 the six `FINE` moves follow
+    (`action_names`).
 
     Each direction is turned into the Cartesian step from the controller's current target, so that orbit
-    steps stay on their circle exactly. The step length is the task's `step_size`.
+    steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
     """
 
-    def __init__(self, env: gym.Env, stay_action: bool = False):
+    def __init__(self, env: gym.Env, stay_action: bool = False, fine_step: float = 0.0):
         super().__init__(env)
         base = env.unwrapped
         if base.control_mode != "pd_ee_delta_pos":
             raise ValueError(f"DiscreteDirections needs control_mode='pd_ee_delta_pos', got {base.control_mode!r}")
         self.num_envs = base.num_envs
         self._batched = len(env.action_space.shape) == 2
-        self.names = action_names(stay_action)
+        if not 0 <= fine_step < base.step_size:
+            raise ValueError(f"fine_step={fine_step!r} must be in [0, step_size={base.step_size}) (0: no fine moves)")
+        self.fine_step = fine_step
+        self.names = action_names(stay_action, fine_step > 0)
         n = len(self.names)
         self.action_space = gym.spaces.MultiDiscrete([n] * self.num_envs) if self._batched else gym.spaces.Discrete(n)
 
@@ -91,7 +122,8 @@ class DiscreteDirections(gym.ActionWrapper):
         base = self.env.unwrapped
         controller = base.agent.controller
         idx = self._indices(action).to(base.device)
-        deltas = direction_deltas(controller.target_pos, base.step_size, controller.config.pitch, self.names)
+        pitch = controller.config.pitch
+        deltas = direction_deltas(controller.target_pos, base.step_size, pitch, self.names, self.fine_step)
         delta = deltas[torch.arange(len(idx)), idx]
         if self._batched:
             return delta

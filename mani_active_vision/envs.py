@@ -100,6 +100,10 @@ class EnvConfig:
     stay_action: bool = False
     """a seventh action, stay (index 6, a zero step), so that an agent can hold a view (not the paper's:
     its six directions stay the default; docs/control.md)"""
+    fine_step_size: float = 0.0
+    """the six directions again at this shorter step, as actions after them (and after stay), for the policy
+    that takes over from the exploration: a view in success is often one or two of the full step's lattice
+    (0: off, the paper's; docs/control.md §11)"""
 
     def __post_init__(self):
         if self.box_source not in BOX_SOURCE_CHOICES:
@@ -117,6 +121,10 @@ class EnvConfig:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be in [0, 1) (0: the checkpoint's)")
         if not (isinstance(self.box_hold_steps, int) and self.box_hold_steps >= 0):
             raise ValueError(f"box_hold_steps={self.box_hold_steps!r} must be an integer of at least 0 (0: off)")
+        if not 0 <= self.fine_step_size < self.step_size:
+            raise ValueError(
+                f"fine_step_size={self.fine_step_size!r} must be in [0, step_size={self.step_size}) (0: no fine moves)"
+            )
         if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps={self.max_episode_steps!r} must be a positive integer")
 
@@ -168,7 +176,7 @@ class EnvConfig:
 def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
     """`DiscreteDirections`, then `BoxState` as `config` says, around a made task (also inside vector-env
     workers). `segmenter`: the FCN for box_source=fcn (default: loaded from `config.fcn_weights`)."""
-    env = DiscreteDirections(env, stay_action=config.stay_action)
+    env = DiscreteDirections(env, stay_action=config.stay_action, fine_step=config.fine_step_size)
     if config.box_source == "none":
         return env
     if config.box_source == "fcn" and segmenter is None:

@@ -523,7 +523,7 @@ def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(baseline_s
 
 
 def test_mirrored_transitions_and_shaping_potentials():
-    six = dqn.MIRRORED_ACTION[:6]  # the table of the six directions (stay, when enabled, comes last)
+    six = dqn.mirrored_actions(6)  # the table of the six directions
     assert [mav.DIRECTIONS[a] for a in six] == ["right", "left", "forward", "backward", "up", "down"]
     np.testing.assert_allclose(dqn.mirror_state(np.array([0.1, 0.2, 0.3, 0.4])), [0.6, 0.2, 0.3, 0.4])
     assert not dqn.mirror_state(np.zeros(4)).any()  # unseen stays unseen

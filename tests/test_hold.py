@@ -72,7 +72,9 @@ def test_a_short_training_run_with_stay_stores_seven_actions(tmp_path):
     result = dqn.train(args, progress=False)
     q_network, config = load_q_network(result["checkpoint"])
     assert q_network.num_actions == 7 and config["state_dim"] == 4 + 7 and config["env"]["stay_action"]
-    assert [dqn.ACTIONS[a] for a in dqn.MIRRORED_ACTION] == ["right", "left", "forward", "backward", "up", "down", STAY]
+    assert [action_names(True)[a] for a in dqn.mirrored_actions(7)] == [
+        *("right", "left", "forward", "backward", "up", "down", STAY)
+    ]
     last_stay = np.array([0.1, 0.2, 0.3, 0.4, 0, 0, 0, 0, 0, 0, 1])
     np.testing.assert_allclose(dqn.mirror_state(last_stay), [0.6, 0.2, 0.3, 0.4, 0, 0, 0, 0, 0, 0, 1])
     last_left = np.array([0.1, 0.2, 0.3, 0.4, 1, 0, 0, 0, 0, 0, 0])

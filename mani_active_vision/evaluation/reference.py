@@ -1,5 +1,7 @@
 """The privileged reference behind SPL: the scripted servo that knows from the start which way the target
-lies and orbits that way first. Its steps to success on a seed are the shortest path we know of."""
+lies and orbits that way first. Its steps to success on a seed are the shortest path we know of (at the full
+step: with the env's fine moves too, it keeps to the six directions, so that SPL stays comparable across action
+sets)."""
 
 from __future__ import annotations
 
@@ -24,6 +26,6 @@ def toward_target_sweep(env) -> str:
 def reference_steps(env, seed: int) -> float:
     """Steps to the first success of the privileged servo on this seed (NaN if it does not succeed)."""
     env.reset(seed=seed)
-    servo = ServoPolicy(env, first_sweep=toward_target_sweep(env))
+    servo = ServoPolicy(env, first_sweep=toward_target_sweep(env), fine=False)  # the full step, whatever the env offers
     trajectory = run_episode(env, servo, seed, stop=lambda t: t.success[-1])
     return first_index(trajectory.success)

@@ -8,6 +8,9 @@ import rerun as rr
 
 from mani_active_vision.directions import action_names
 
+DEFAULT_NAMES = action_names(stay_action=True)
+"""The action names where the env's set is not known: the six directions and `stay`."""
+
 TARGET_COLOR = (230, 40, 40)
 DISTRACTOR_COLORS = [
     (40, 120, 230),
@@ -119,10 +122,19 @@ def log_ee_path(stream, i: int, path: list):
 
 
 def log_transition(
-    stream, i: int, action: np.ndarray, refused: bool, reward: float, success: bool, target_fraction: float | None
+    stream,
+    i: int,
+    action: np.ndarray,
+    refused: bool,
+    reward: float,
+    success: bool,
+    target_fraction: float | None,
+    names: tuple[str, ...] = DEFAULT_NAMES,
 ):
-    """What one step did: the action's name, its reward, success and the target's fraction of the image."""
-    stream.log(f"env{i}/action", rr.TextLog(action_name(action) + (" (refused)" if refused else ""), level="DEBUG"))
+    """What one step did: the action's name (of `names`, the env's action set), its reward, success and the
+    target's fraction of the image."""
+    text = action_name(action, names) + (" (refused)" if refused else "")
+    stream.log(f"env{i}/action", rr.TextLog(text, level="DEBUG"))
     stream.log(f"env{i}/reward", rr.Scalars(float(reward)))
     stream.log(f"env{i}/success", rr.Scalars(float(success)))
     if target_fraction is not None:
@@ -133,9 +145,9 @@ def log_outcome(stream, i: int, text: str, success: bool):
     stream.log(f"env{i}/outcome", rr.TextLog(text, level="INFO" if success else "WARN"))
 
 
-def action_name(action: np.ndarray) -> str:
-    """An action's name for an action index (a direction, or `stay`), else the action's numbers."""
-    names = action_names(stay_action=True)
+def action_name(action: np.ndarray, names: tuple[str, ...] = DEFAULT_NAMES) -> str:
+    """An action's name for an action index into `names` (the env's action set: `action_names_for`), else the
+    action's numbers."""
     if action.size == 1 and np.issubdtype(action.dtype, np.integer) and 0 <= int(action[0]) < len(names):
         return names[int(action[0])]
     return np.array2string(action, precision=3)

@@ -26,11 +26,21 @@ import torch
 
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.boxes import mask_to_box
+from mani_active_vision.directions import action_names_for
 from mani_active_vision.occluders import PANEL_SIZE
 from mani_active_vision.recording import log
 from mani_active_vision.recording.blueprint import blueprint
 
 IMAGE_FORMATS = ("jpeg", "raw")
+
+
+def _action_names(space: gym.Space | None) -> tuple[str, ...]:
+    """The names of a discrete action space's actions (`action_names_for`), else the default set."""
+    if isinstance(space, gym.spaces.Discrete):
+        return action_names_for(int(space.n))
+    if isinstance(space, gym.spaces.MultiDiscrete):
+        return action_names_for(int(space.nvec.reshape(-1)[0]))
+    return log.DEFAULT_NAMES
 
 
 def check_writable(path: str) -> None:
@@ -56,6 +66,7 @@ class Recording:
         image_format: str = "jpeg",
         jpeg_quality: int = 90,
         application_id: str = "mani_active_vision",
+        action_space: gym.Space | None = None,
     ):
         if image_format not in IMAGE_FORMATS:
             raise ValueError(f"image_format={image_format!r} is not one of: {', '.join(IMAGE_FORMATS)}")
@@ -70,6 +81,7 @@ class Recording:
         self.episode = np.full(num_envs, -1)  # the `episode` timeline, per env
         self.episodes = [None] * num_envs  # per env: return, steps, first success, path, done
         self.mask_context_logged = False
+        self.action_names = _action_names(action_space)
         self.seconds = 0.0  # time spent logging
         self.closed = False
 
@@ -163,6 +175,7 @@ class Recording:
                 reward[i],
                 bool(success[i]),
                 None if fraction is None else fraction[i],
+                self.action_names,
             )
             if done[i]:
                 self.end_episode(i, bool(success[i]), None if fraction is None else fraction[i], "ended")
@@ -249,7 +262,9 @@ class RerunRecorder(_Timed, gym.Wrapper):
     ):
         gym.Wrapper.__init__(self, env)
         self.box_state = _find_box_state(env)
-        self.recording = Recording(path, env.unwrapped.num_envs, image_format, jpeg_quality, application_id)
+        self.recording = Recording(
+            path, env.unwrapped.num_envs, image_format, jpeg_quality, application_id, env.action_space
+        )
         self.path = self.recording.path
         self._start_timing()
 
@@ -321,7 +336,7 @@ class RerunVectorRecorder(_Timed, gym.vector.VectorWrapper):
         mode = env.metadata.get("autoreset_mode", gym.vector.AutoresetMode.NEXT_STEP)
         if mode != gym.vector.AutoresetMode.NEXT_STEP:
             raise ValueError(f"autoreset_mode={mode!r} is not supported; use {gym.vector.AutoresetMode.NEXT_STEP!r}")
-        self.recording = Recording(path, env.num_envs, image_format, jpeg_quality, application_id)
+        self.recording = Recording(path, env.num_envs, image_format, jpeg_quality, application_id, env.action_space)
         self.path = self.recording.path
         self._restarting = np.zeros(env.num_envs, bool)
         self._names = self._target_ids = None

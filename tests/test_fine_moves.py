@@ -1,0 +1,101 @@
+"""The optional fine moves: the six directions again at `fine_step_size`, through the env, the servo, the DQN's
+mirrored transitions and the recording's action names."""
+
+import numpy as np
+import pytest
+import torch
+from conftest import cached_task
+
+import mani_active_vision as mav
+from mani_active_vision.agents import dqn
+from mani_active_vision.agents.policies import ServoPolicy, learner_actions, make_policy
+from mani_active_vision.agents.q_network import load_q_network
+from mani_active_vision.box_state import BoxState
+from mani_active_vision.directions import FINE, STAY, action_names, action_names_for
+from mani_active_vision.envs import EnvConfig
+from mani_active_vision.recording.log import action_name
+
+FORWARD = mav.DIRECTIONS.index("forward")
+
+
+def test_the_fine_moves_follow_the_six_and_stay_and_are_shorter():
+    assert action_names(fine_actions=True) == (*mav.DIRECTIONS, *FINE)
+    assert action_names(True, True) == (*mav.DIRECTIONS, STAY, *FINE)
+    assert [len(action_names_for(n)) for n in (6, 7, 12, 13)] == [6, 7, 12, 13]
+    with pytest.raises(ValueError, match=r"no action set has 8 actions: valid counts are \[6, 7, 12, 13\]"):
+        action_names_for(8)
+    env = mav.DiscreteDirections(cached_task(start_pose="search"), stay_action=True, fine_step=0.025)
+    assert env.action_space.n == 13 and env.names[7] == "left_fine"
+    env.reset(seed=0)
+    controller = env.unwrapped.agent.controller
+    for name, length in (("forward", 0.05), ("forward_fine", 0.025), ("up_fine", 0.025)):
+        before = controller.target_pos.clone()
+        env.step(env.names.index(name))
+        assert float(torch.linalg.norm(controller.target_pos - before)) == pytest.approx(length, abs=1e-5)
+    before = controller.target_pos.clone()
+    env.step(env.names.index("left_fine"))
+    env.step(env.names.index("right_fine"))
+    torch.testing.assert_close(controller.target_pos, before)  # the fine orbit steps reverse exactly
+    with pytest.raises(ValueError, match=r"fine_step=0.05 must be in \[0, step_size=0.05\)"):
+        mav.DiscreteDirections(cached_task(start_pose="search"), fine_step=0.05)
+    with pytest.raises(ValueError, match=r"fine_step_size=0.1 must be in \[0, step_size=0.05\)"):
+        EnvConfig(fine_step_size=0.1)
+
+
+def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
+    env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search"), fine_step=0.025))
+    fine_forward = action_names_for(12).index("forward_fine")
+
+    def act(servo, box):
+        return int(servo.act(torch.tensor([box]), {"refused": torch.tensor([False])})[0])
+
+    for fine, served in ((True, fine_forward), (False, FORWARD)):
+        servo = ServoPolicy(env, fine=fine)
+        servo.reset(None, {})
+        assert act(servo, [0.4, 0.4, 0.2, 0.2]) == served  # centred: forward
+        assert act(servo, [0, 0, 0, 0]) == mav.DIRECTIONS.index("left")  # unseen: the sweep's full step
+
+
+def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):
+    names = action_names_for(13)
+    mirrored = [names[a] for a in dqn.mirrored_actions(13)]
+    assert mirrored[7:9] == ["right_fine", "left_fine"] and mirrored[9:] == list(FINE[2:]) and mirrored[6] == STAY
+    last_left_fine = np.zeros(4 + 13, np.float32)
+    last_left_fine[:4], last_left_fine[4 + 7] = (0.1, 0.2, 0.3, 0.4), 1
+    np.testing.assert_allclose(dqn.mirror_state(last_left_fine)[[0, 4 + 7, 4 + 8]], [0.6, 0, 1])
+    env = EnvConfig(max_episode_steps=30, stay_action=True, fine_step_size=0.025)
+    args = dqn.Args(**dqn.SHAPED, env=env, episodes=1, learning_starts=10, demo_episodes=1, run_dir=str(tmp_path))
+    q_network, config = load_q_network(dqn.train(args, progress=False)["checkpoint"])
+    assert q_network.num_actions == 13 and config["env"]["fine_step_size"] == 0.025
+    assert config["learner_moves"] == "all"
+    assert action_name(np.array([7]), names) == "left_fine" and action_name(np.array([6])) == STAY
+
+
+def test_a_learner_on_the_fine_moves_never_takes_a_full_step():
+    assert learner_actions(13, "fine").tolist() == [6, *range(7, 13)] and len(learner_actions(13)) == 13
+    with pytest.raises(ValueError, match="needs the fine moves"):
+        learner_actions(7, "fine")
+    with pytest.raises(ValueError, match="learner_moves='coarse' is not one of: all, fine"):
+        learner_actions(13, "coarse")
+    env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search"), stay_action=True, fine_step=0.025))
+    q_network = dqn.QNetwork(4, num_actions=13)
+    with torch.no_grad():
+        q_network.network[2].weight.zero_()
+        q_network.network[2].bias[:] = torch.arange(13.0).flip(0)  # prefers left, the full step
+    box = torch.tensor([[0.4, 0.4, 0.2, 0.2]])
+    assert int(make_policy("dqn", env, q_network=q_network).act(box, {})[0]) == 0
+    fine = make_policy("dqn", env, q_network=q_network, learner_moves="fine", epsilon=0.5)
+    fine.epsilon = 0.0
+    assert int(fine.act(box, {})[0]) == 6  # stay: the best of the fine moves and stay
+    fine.epsilon = 1.0
+    assert {int(fine.act(box, {})[0]) for _ in range(200)} == set(range(6, 13))  # random among them only
+    batch = {
+        "states": box,
+        "actions": torch.tensor([7]),
+        "rewards": torch.zeros(1),
+        "next_states": box,
+        "terminated": torch.zeros(1),
+    }
+    everything = dqn.td_loss(q_network, q_network, batch, gamma=1.0)
+    only_fine = dqn.td_loss(q_network, q_network, batch, gamma=1.0, allowed=learner_actions(13, "fine"))
+    assert everything.item() == pytest.approx((5 - 12) ** 2) and only_fine.item() == pytest.approx((5 - 6) ** 2)
