@@ -74,7 +74,6 @@ from mani_active_vision.agents.policies import (
     box_array,
     in_success_with_margin,
     margin_limits,
-    mask_actions,
     num_actions,
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
@@ -173,9 +172,6 @@ class Args:
     with_last_action: bool = False
     """append a one-hot of the DQN's own previous direction to the state, so that it can tell a step
     forward from a step back in the same box (not in the paper)"""
-    learner_moves: str = "all"
-    """all: the learner takes every action of the env; fine: only the fine moves and stay (needs
-    env.fine_step_size; the exploration's sweep keeps the full step; not in the paper; docs/control.md §11)"""
     mirror_augment: bool = False
     """also store each transition mirrored left-right (box flipped, left and right swapped): the task is
     nearly symmetric, so this doubles the experience (not in the paper; box-only state)"""
@@ -293,28 +289,24 @@ def td_loss(
     gamma: float,
     double_dqn: bool = False,
     huber: bool = False,
-    allowed=None,
 ) -> torch.Tensor:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
-    (`steps` = 1 where the batch does not say; a' among the `allowed` indices, if given). An ensemble's members
-    each learn against their own target member (and, with double DQN, their own argmax), on the one batch or on
-    a list of one batch per member; the loss is the mean over members."""
+    (`steps` = 1 where the batch does not say). An ensemble's members each learn against their own target
+    member (and, with double DQN, their own argmax), on the one batch or on a list of one batch per member; the
+    loss is the mean over members."""
     batches = batch if isinstance(batch, list) else [batch] * q_network.ensemble
     losses = [
-        _member_td_loss(q_network.member(k), target_network.member(k), b, gamma, double_dqn, huber, allowed)
+        _member_td_loss(q_network.member(k), target_network.member(k), b, gamma, double_dqn, huber)
         for k, b in enumerate(batches)
     ]
     return torch.stack(losses).mean()
 
 
-def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double_dqn: bool, huber: bool, allowed):
+def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double_dqn: bool, huber: bool):
     with torch.no_grad():
         next_q = target_network(batch["next_states"])
-        if allowed is not None:
-            next_q = mask_actions(next_q, allowed)
         if double_dqn:
-            online = q_network(batch["next_states"])
-            next_action = (online if allowed is None else mask_actions(online, allowed)).argmax(-1, keepdim=True)
+            next_action = q_network(batch["next_states"]).argmax(-1, keepdim=True)
             next_value = next_q.gather(1, next_action).squeeze(1)
         else:
             next_value = next_q.max(-1).values
@@ -484,7 +476,6 @@ class Selector:
             q_network=q_network,
             with_last_action=self.args.with_last_action,
             avoid_refused=self.args.avoid_refused,
-            learner_moves=self.args.learner_moves,
         )
         policy = ExplorePolicy(self.env, then=greedy, look_over=self.args.look_over) if self.args.explore else greedy
         episodes = evaluate(self.env, policy, self.seeds, with_reference=False, progress=False)
@@ -503,12 +494,11 @@ class Selector:
 
 
 def update(
-    q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict | list[dict], args: Args, allowed=None
+    q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict | list[dict], args: Args
 ) -> tuple[float, float]:
-    """One gradient step on a batch (or one per ensemble member): the TD loss (bootstrapping from the `allowed`
-    actions, if given), plus DQfD's margin loss with `demo_margin` (on the ensemble's mean, the first batch);
-    returns both."""
-    loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber, allowed)
+    """One gradient step on a batch (or one per ensemble member): the TD loss, plus DQfD's margin loss with
+    `demo_margin` (on the ensemble's mean, the first batch); returns both."""
+    loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
     first = batch[0] if isinstance(batch, list) else batch
     margin = margin_loss(q_network, first, args.demo_margin) if args.demo_margin else torch.zeros(())
     optimizer.zero_grad()
@@ -643,14 +633,7 @@ def train(args: Args, progress: bool = True) -> dict:
     if not args.target_network:
         target_network = q_network  # bootstrap from the online network itself
     # the ε-greedy learner acts without avoid_refused: it is for the trained agent (measured: docs/control.md §7)
-    learner = DQNPolicy(
-        env,
-        q_network=q_network,
-        seed=args.seed,
-        with_last_action=args.with_last_action,
-        learner_moves=args.learner_moves,
-    )
-    allowed = None if len(learner.allowed) == actions else learner.allowed
+    learner = DQNPolicy(env, q_network=q_network, seed=args.seed, with_last_action=args.with_last_action)
     servo = ServoPolicy(  # after the exploration's hand-over the lead-in is done: the servo does not redo it
         env,
         hold=actions > len(DIRECTIONS),
@@ -735,9 +718,7 @@ def train(args: Args, progress: bool = True) -> dict:
                     global_step += 1  # the updates follow the env steps of the episodes, whatever the env count
                     if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
                         for _ in range(args.updates_per_step):
-                            losses_now = update(
-                                q_network, target_network, optimizer, sample(buffer, args, rng), args, allowed
-                            )
+                            losses_now = update(q_network, target_network, optimizer, sample(buffer, args, rng), args)
                             losses.append(losses_now[0])
                             if args.demo_margin:
                                 margins.append(losses_now[1])

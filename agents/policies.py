@@ -35,6 +35,11 @@ LEFT, RIGHT, FORWARD, BACKWARD, UP, DOWN = (
     DIRECTIONS.index(d) for d in ("left", "right", "forward", "backward", "up", "down")
 )
 STAY_INDEX = action_names(stay_action=True).index(STAY)
+FINE_FROM = 0.02
+"""Where the env has the fine moves (env.fine_step_size), the servo and the DQN take them once the target's box
+covers this share of the image, and the full step farther out: success needs the target's own pixels to cover
+5%, and close up a full step passes over the few views in success, while far out half steps only cost time
+(docs/control.md §11)."""
 
 
 def box_array(obs) -> np.ndarray:
@@ -92,27 +97,19 @@ def one_hot(actions: np.ndarray, num_actions: int) -> np.ndarray:
     return (np.asarray(actions)[:, None] == np.arange(num_actions)).astype(np.float32)
 
 
-LEARNER_MOVES = ("all", "fine")
-
-
-def learner_actions(count: int, moves: str = "all") -> np.ndarray:
-    """The indices a DQN may take in an env with `count` actions: `all` of them, or with `fine` only the fine
-    moves and `stay` (a learner that acts after the exploration's hand-over leaves the full steps to the sweep)."""
-    if moves not in LEARNER_MOVES:
-        raise ValueError(f"learner_moves={moves!r} is not one of: {', '.join(LEARNER_MOVES)}")
-    names = action_names_for(count)
-    if moves == "all":
-        return np.arange(count)
-    if FINE[0] not in names:
-        raise ValueError("learner_moves='fine' needs the fine moves: make the env with fine_step_size > 0")
-    return np.array([i for i, name in enumerate(names) if name in FINE or name == STAY])
-
-
-def mask_actions(q: torch.Tensor, allowed) -> torch.Tensor:
-    """`q` (N, actions) with every action not in `allowed` (indices) at -inf: argmax and max never take them."""
-    keep = torch.zeros(q.shape[-1], dtype=torch.bool)
-    keep[torch.as_tensor(allowed)] = True
-    return q.masked_fill(~keep, -torch.inf)
+def env_actions(network_actions: int, env_actions: int, fine: bool = True) -> np.ndarray:
+    """For each of a Q-network's actions, the env's action index: the same action, or with `fine`, where the env
+    has the fine moves and the network does not, the fine move of each direction (`stay` stays)."""
+    network, env = action_names_for(network_actions), action_names_for(env_actions)
+    added = FINE[0] in env and FINE[0] not in network
+    names = [f"{name}_fine" if fine and added and name in DIRECTIONS else name for name in network]
+    missing = [name for name in names if name not in env]
+    if missing or (not added and network_actions != env_actions):
+        raise ValueError(
+            f"the Q-network has {network_actions} actions, the env takes {env_actions} ({network} and {env}): train "
+            "and act with the same stay_action (the env may add the fine moves, fine_step_size, to a network's six)"
+        )
+    return np.array([env.index(name) for name in names])
 
 
 def rule_out_refused(q: torch.Tensor, refused: np.ndarray, last_action: np.ndarray) -> torch.Tensor:
@@ -217,8 +214,8 @@ class ServoPolicy:
     one orbit step moves the box by more than the centring tolerance (docs/task.md#occluders). `lead_in=False`
     leaves the lead-in out, for a servo that takes over after an exploration that has looked over already.
 
-    With `fine` it serves with the fine moves where the env has them (env.fine_step_size; its sweep keeps the
-    full step): a view in success is often one or two of the full step's lattice (docs/control.md §11)."""
+    With `fine` it serves with the fine moves where the env has them (env.fine_step_size) once the box covers
+    `fine_from` of the image (`FINE_FROM`); its sweep keeps the full step (docs/control.md §11)."""
 
     def __init__(
         self,
@@ -230,10 +227,12 @@ class ServoPolicy:
         look_over: bool = False,
         lead_in: bool | None = None,
         fine: bool = True,
+        fine_from: float = FINE_FROM,
     ):
         self.num_envs = env.unwrapped.num_envs
         names = action_names_for(num_actions(env))
         self.fine_offset = names.index(FINE[0]) if fine and FINE[0] in names else 0  # FINE is in DIRECTIONS' order
+        self.fine_from = fine_from
         self.center_tol = center_tol
         lead_in = look_over if lead_in is None else lead_in
         first = DIRECTIONS.index(first_sweep)
@@ -274,7 +273,7 @@ class ServoPolicy:
         action[~served] = sweep[~served]
         self.last_action[:] = action
         if self.fine_offset:
-            action[served] += self.fine_offset
+            action[served & (w * h >= self.fine_from)] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
@@ -327,8 +326,12 @@ class DQNPolicy:
     start of an episode): `state(obs)`. The env's action count (6, or 7 with `stay`) must be the network's.
     With `avoid_refused` (read from the checkpoint's config too) a greedy action the controller has just refused
     is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
-    repeat it to the episode's end (docs/control.md §7). With `learner_moves="fine"` (read from the checkpoint's
-    config too) it takes only the fine moves and `stay` (`learner_actions`; docs/control.md §11)."""
+    repeat it to the episode's end (docs/control.md §7).
+
+    In an env with the fine moves (env.fine_step_size) a network trained on the six directions (and `stay`) takes
+    the fine move of each direction it chooses once the box covers `fine_from` of the image (`FINE_FROM`): close
+    up, half a step lands on views in success that a full one passes over (docs/control.md §11). `last_action`
+    and the state's one-hot are the network's own indices; `act` returns the env's."""
 
     def __init__(
         self,
@@ -339,7 +342,7 @@ class DQNPolicy:
         q_network=None,
         with_last_action: bool = False,
         avoid_refused: bool = False,
-        learner_moves: str = "all",
+        fine_from: float = FINE_FROM,
     ):
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
@@ -348,12 +351,10 @@ class DQNPolicy:
         self.with_last_action = bool(self.config.get("with_last_action", with_last_action))
         self.avoid_refused = bool(self.config.get("avoid_refused", avoid_refused))
         self.last_action = np.full(self.num_envs, -1)
-        self.num_actions = num_actions(env)
-        if self.num_actions != self.q_network.num_actions:
-            raise ValueError(
-                f"the Q-network has {self.q_network.num_actions} actions, the env takes {self.num_actions} "
-                f"(env.stay_action={self.num_actions > len(DIRECTIONS)}): train and act with the same stay_action"
-            )
+        self.num_actions = self.q_network.num_actions
+        self.to_env = env_actions(self.num_actions, num_actions(env))
+        self.to_env_full = env_actions(self.num_actions, num_actions(env), fine=False)
+        self.fine_from = fine_from
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -362,7 +363,6 @@ class DQNPolicy:
                 f"checkpoint {checkpoint!r} expects a state of {self.q_network.state_dim} numbers "
                 f"(with_ee_pos={self.config.get('env', {}).get('with_ee_pos')}), the env gives {state_dim}"
             )
-        self.allowed = learner_actions(self.num_actions, self.config.get("learner_moves", learner_moves))
         self.epsilon = epsilon
         self.rng = np.random.default_rng(seed)
 
@@ -379,18 +379,14 @@ class DQNPolicy:
     def act(self, obs, info) -> np.ndarray:
         with torch.no_grad():
             q = self.q_network(torch.as_tensor(self.state(obs)))
-        if len(self.allowed) < self.num_actions:
-            q = mask_actions(q, self.allowed)
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
         action = q.argmax(-1).numpy().astype(np.int64)
         explore = self.rng.random(self.num_envs) < self.epsilon
-        if len(self.allowed) < self.num_actions:
-            action[explore] = self.rng.choice(self.allowed, size=int(explore.sum()))
-        else:
-            action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
+        action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action
-        return action
+        box = box_array(obs)
+        return np.where(box[:, 2] * box[:, 3] >= self.fine_from, self.to_env[action], self.to_env_full[action])
 
 
 class MemoryPolicy:

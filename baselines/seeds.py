@@ -53,6 +53,9 @@ class Args:
     """objects of the evaluation episodes (training uses env.object_set)"""
     eval_box_source: str = "ground_truth"
     """the box the agent acts on when evaluated: ground_truth or fcn"""
+    eval_fine_step_size: float = 0.0
+    """the evaluation env's fine moves (EnvConfig.fine_step_size; 0: none): the DQN, trained on the full step,
+    and the servo take them near the target, as the shipped DQN is deployed (envs.DQN_FINE_STEP_SIZE)"""
     env: EnvConfig = field(default_factory=EnvConfig)
     """the training env (ground-truth box, train objects by default)"""
     out_dir: str = "runs/seeds"
@@ -95,7 +98,21 @@ def train_options(args: Args) -> dict:
 
 
 def eval_env_config(args: Args) -> EnvConfig:
-    return args.env.replace(object_set=args.eval_object_set, box_source=args.eval_box_source)
+    return args.env.replace(
+        object_set=args.eval_object_set, box_source=args.eval_box_source, fine_step_size=args.eval_fine_step_size
+    )
+
+
+def eval_suffix(args: Args) -> str:
+    """What names an evaluation's files besides the objects: "" on the ground-truth box, "_<box>" on another,
+    then "_fine" with the fine moves."""
+    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
+    return box + fine(args)
+
+
+def fine(args: Args) -> str:
+    """The suffix "_fine" where the evaluation has the fine moves, else ""."""
+    return "_fine" if args.eval_fine_step_size else ""
 
 
 def references(args: Args) -> dict[int, float]:
@@ -111,7 +128,9 @@ def references(args: Args) -> dict[int, float]:
             env.close()
 
     value = cached(
-        os.path.join(args.out_dir, f"reference_{args.eval_object_set}_{args.eval_box_source}.json"), key, compute
+        os.path.join(args.out_dir, f"reference_{args.eval_object_set}_{args.eval_box_source}{fine(args)}.json"),
+        key,
+        compute,
     )
     return {int(k): math.nan if v is None else v for k, v in value.items()}
 
@@ -128,9 +147,12 @@ def evaluate_policy(args: Args, name: str, **kwargs) -> dict:
 
 
 def eval_path(args: Args, seed_dir: str) -> str:
-    """A seed's evaluation: eval.json on the ground-truth box, eval_<box>.json on another."""
-    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
-    return os.path.join(seed_dir, f"eval{box}.json")
+    """A seed's evaluation: eval.json on the ground-truth box, eval_<box>.json on another (`eval_suffix`)."""
+    return os.path.join(seed_dir, f"eval{eval_suffix(args)}.json")
+
+
+def servo_path(args: Args) -> str:
+    return os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}{fine(args)}.json")
 
 
 def run_seed(args: Args, seed: int):
@@ -183,17 +205,17 @@ def report(args: Args) -> str:
         )
         worst = min(summaries, key=lambda s: s["success"])
         lines.append(f"| {label(args)}: worst seed (by success) | | | " + cells(worst) + " |")
-    servo = os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}.json")
+    servo = servo_path(args)
     if os.path.exists(servo):
         lines.append("| servo (scripted) | | | " + cells(read_json(servo)["value"]["summary"]) + " |")
     table = "\n".join(lines)
     note = (
         f"\n\n({args.eval_episodes} evaluation episodes per seed from 1,000,000, {args.eval_object_set} objects, "
-        f"{args.eval_box_source} box; focus held over the successful episodes; in the mean row, focus held and steps "
-        "to success are over the seeds where they exist)\n"
+        f"{args.eval_box_source} box{', fine moves near the target' if args.eval_fine_step_size else ''}; focus held "
+        "over the successful episodes; in the mean row, focus held and steps to success are over the seeds where "
+        "they exist)\n"
     )
-    box = "" if args.eval_box_source == "ground_truth" else f"_{args.eval_box_source}"
-    with open(os.path.join(args.out_dir, f"{label(args)}{box}_table.md"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{label(args)}{eval_suffix(args)}_table.md"), "w") as f:
         f.write(table + note)
     return table
 
@@ -213,11 +235,7 @@ def main(args: Args):
     train_options(args)  # a wrong --set fails before anything runs
     if not args.report_only:
         key = {"env": dataclasses.asdict(eval_env_config(args)), "episodes": args.eval_episodes}
-        cached(
-            os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}.json"),
-            key,
-            lambda: evaluate_policy(args, "servo"),
-        )
+        cached(servo_path(args), key, lambda: evaluate_policy(args, "servo"))
         for seed in args.seeds:
             run_seed(args, seed)
     print(report(args))

@@ -1,6 +1,6 @@
 """Make a DQN checkpoint the shipped agent: a copy whose env (what evaluation starts from) is the deployed one,
-the FCN's box on unseen objects at 128², held through the FCN's misses, with the env it was trained in kept
-as config["trained_env"].
+the FCN's box on unseen objects at 128², held through the FCN's misses (and, if asked, the fine moves near the
+target), with the env it was trained in kept as config["trained_env"].
 
     python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt
 
@@ -37,6 +37,9 @@ class Args:
     scripts/make_dqn.sh ships the DQN with envs.DQN_FCN_THRESHOLDS)"""
     fcn_track_threshold: float = 0.0
     """the verifier probability a region near the last box needs to stay the box (0: the FCN checkpoint's)"""
+    fine_step_size: float = 0.0
+    """the deployed env's fine moves (0: none; scripts/make_dqn.sh ships the DQN with envs.DQN_FINE_STEP_SIZE:
+    trained on the full step, it takes half steps near the target)"""
 
 
 def ship(args: Args) -> EnvConfig:
@@ -48,7 +51,7 @@ def ship(args: Args) -> EnvConfig:
     env = (
         EnvConfig.from_dict(trained)
         .on_fcn_box((args.fcn_acquire_threshold, args.fcn_track_threshold))
-        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
+        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps, fine_step_size=args.fine_step_size)
     )
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

@@ -3,10 +3,12 @@
 # docs/control.md §9; PRESET=hold_stay for §7's): train it on seeds 0-4 (100 episodes each, ground-truth box,
 # train objects) and evaluate each on 50 held-out episodes (unseen objects) on the ground-truth box (64²), then on
 # the FCN's box as the shipped DQN is deployed (128², the box held 20 steps through the FCN's misses, the
-# verifier's bars envs.DQN_FCN_THRESHOLDS), the scripted servo beside them.
+# verifier's bars envs.DQN_FCN_THRESHOLDS), the scripted servo beside them; then both again with the fine moves near
+# the target (envs.DQN_FINE_STEP_SIZE), as the shipped DQN is deployed (docs/control.md §11).
 # Two lanes of baselines/seeds.py, one per core with one render thread each (each lane evaluates the servo once
 # per box: neither has cached it until it finishes). Finished runs and evaluations under $OUT are skipped on a
-# rerun; the tables are $OUT/$PRESET_table.md and $OUT/$PRESET_fcn_table.md. About 30 min on 2 cores.
+# rerun; the tables are $OUT/$PRESET_table.md, $OUT/$PRESET_fcn_table.md and the same with _fine. About 45 min on
+# 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -22,5 +24,8 @@ lanes() {
     wait
     $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --report-only "$@"
 }
+FINE=(--eval-fine-step-size "$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")")
 lanes
 lanes "${FCN[@]}"
+lanes "${FINE[@]}"
+lanes "${FCN[@]}" "${FINE[@]}"

@@ -3,9 +3,11 @@
 # 0, chosen before training; 100 training episodes, ground-truth box, train objects; one process,
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
 # baselines/ship_dqn.py, with the verifier bars of envs.DQN_FCN_THRESHOLDS: 0.97 to acquire a region, 0.9 to
-# keep it), then evaluate it as deployed on 50 held-out episodes (docs/control.md §9).
+# keep it; and the fine moves of envs.DQN_FINE_STEP_SIZE, half steps near the target), then evaluate it as
+# deployed on 50 held-out episodes (docs/control.md §9, §11).
 # The hold_stay agent shipped before it (the shipped memory agent's teacher; docs/search.md) is remade by
-#   PRESET=hold_stay SEED=0 OUT=agents/weights/dqn_hold_stay.pt bash scripts/make_dqn.sh
+#   PRESET=hold_stay SEED=0 OUT=agents/weights/dqn_hold_stay.pt \
+#   SHIP_ARGS="--fcn-acquire-threshold 0.97 --fcn-track-threshold 0.9" bash scripts/make_dqn.sh   (no fine moves)
 # The six-direction agent shipped before hold_stay (the teacher of an earlier memory agent; docs/search.md) is remade by
 #   PRESET=hold_demo_wide SEED=2 OUT=agents/weights/dqn_hold_demo_wide.pt SHIP_ARGS= bash scripts/make_dqn.sh
 set -euo pipefail
@@ -18,7 +20,8 @@ OUT=${OUT:-agents/weights/dqn.pt}
 RUN=runs/make_dqn/${PRESET}_seed${SEED}
 $PY -m mani_active_vision.agents.dqn "$PRESET" --seed "$SEED" --run-dir runs/make_dqn --run-name "${PRESET}_seed${SEED}" "$@"
 BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
-SHIP_ARGS=${SHIP_ARGS-"--fcn-acquire-threshold ${BARS% *} --fcn-track-threshold ${BARS#* }"}
+FINE=$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")
+SHIP_ARGS=${SHIP_ARGS-"--fcn-acquire-threshold ${BARS% *} --fcn-track-threshold ${BARS#* } --fine-step-size $FINE"}
 # shellcheck disable=SC2086
 $PY baselines/ship_dqn.py --checkpoint "$RUN/q_network.pt" --out "$OUT" $SHIP_ARGS
 $PY baselines/evaluate.py --policy explore --then dqn --checkpoint "$OUT" --episodes 50 \

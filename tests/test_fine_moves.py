@@ -1,5 +1,5 @@
-"""The optional fine moves: the six directions again at `fine_step_size`, through the env, the servo, the DQN's
-mirrored transitions and the recording's action names."""
+"""The optional fine moves: the six directions again at `fine_step_size`, through the env, the servo and the DQN
+(the fine moves near the target, `FINE_FROM`), the DQN's mirrored transitions and the recording's action names."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import ServoPolicy, learner_actions, make_policy
+from mani_active_vision.agents.policies import ServoPolicy, env_actions, make_policy
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import FINE, STAY, action_names, action_names_for
@@ -52,7 +52,8 @@ def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
     for fine, served in ((True, fine_forward), (False, FORWARD)):
         servo = ServoPolicy(env, fine=fine)
         servo.reset(None, {})
-        assert act(servo, [0.4, 0.4, 0.2, 0.2]) == served  # centred: forward
+        assert act(servo, [0.4, 0.4, 0.2, 0.2]) == served  # centred, near (4% of the image): forward
+        assert act(servo, [0.45, 0.45, 0.1, 0.1]) == FORWARD  # far (1%, below FINE_FROM): the full step
         assert act(servo, [0, 0, 0, 0]) == mav.DIRECTIONS.index("left")  # unseen: the sweep's full step
 
 
@@ -67,35 +68,26 @@ def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):
     args = dqn.Args(**dqn.SHAPED, env=env, episodes=1, learning_starts=10, demo_episodes=1, run_dir=str(tmp_path))
     q_network, config = load_q_network(dqn.train(args, progress=False)["checkpoint"])
     assert q_network.num_actions == 13 and config["env"]["fine_step_size"] == 0.025
-    assert config["learner_moves"] == "all"
     assert action_name(np.array([7]), names) == "left_fine" and action_name(np.array([6])) == STAY
 
 
-def test_a_learner_on_the_fine_moves_never_takes_a_full_step():
-    assert learner_actions(13, "fine").tolist() == [6, *range(7, 13)] and len(learner_actions(13)) == 13
-    with pytest.raises(ValueError, match="needs the fine moves"):
-        learner_actions(7, "fine")
-    with pytest.raises(ValueError, match="learner_moves='coarse' is not one of: all, fine"):
-        learner_actions(13, "coarse")
+def test_a_dqn_trained_on_the_full_step_acts_with_the_fine_moves_where_the_env_has_them():
+    assert env_actions(7, 13).tolist() == [7, 8, 9, 10, 11, 12, 6] and env_actions(6, 12).tolist() == list(range(6, 12))
+    assert env_actions(13, 13).tolist() == list(range(13)) and env_actions(7, 7).tolist() == list(range(7))
+    with pytest.raises(ValueError, match=r"the Q-network has 7 actions, the env takes 12 .*stay_action"):
+        env_actions(7, 12)  # stay is not in the env
+    with pytest.raises(ValueError, match=r"the Q-network has 13 actions, the env takes 7"):
+        env_actions(13, 7)
     env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search"), stay_action=True, fine_step=0.025))
-    q_network = dqn.QNetwork(4, num_actions=13)
+    q_network = dqn.QNetwork(4 + 7, num_actions=7)
     with torch.no_grad():
         q_network.network[2].weight.zero_()
-        q_network.network[2].bias[:] = torch.arange(13.0).flip(0)  # prefers left, the full step
+        q_network.network[2].bias[:] = torch.tensor([0.0, 0, 1, 0, 0, 0, 0])  # prefers forward
+    policy = make_policy("dqn", env, q_network=q_network, with_last_action=True)
     box = torch.tensor([[0.4, 0.4, 0.2, 0.2]])
-    assert int(make_policy("dqn", env, q_network=q_network).act(box, {})[0]) == 0
-    fine = make_policy("dqn", env, q_network=q_network, learner_moves="fine", epsilon=0.5)
-    fine.epsilon = 0.0
-    assert int(fine.act(box, {})[0]) == 6  # stay: the best of the fine moves and stay
-    fine.epsilon = 1.0
-    assert {int(fine.act(box, {})[0]) for _ in range(200)} == set(range(6, 13))  # random among them only
-    batch = {
-        "states": box,
-        "actions": torch.tensor([7]),
-        "rewards": torch.zeros(1),
-        "next_states": box,
-        "terminated": torch.zeros(1),
-    }
-    everything = dqn.td_loss(q_network, q_network, batch, gamma=1.0)
-    only_fine = dqn.td_loss(q_network, q_network, batch, gamma=1.0, allowed=learner_actions(13, "fine"))
-    assert everything.item() == pytest.approx((5 - 12) ** 2) and only_fine.item() == pytest.approx((5 - 6) ** 2)
+    policy.reset(box, {})
+    assert int(policy.act(box, {})[0]) == action_names_for(13).index("forward_fine")  # near: 4% of the image
+    assert policy.last_action[0] == FORWARD and policy.state(box)[0, 4:].tolist() == [0, 0, 1, 0, 0, 0, 0]
+    assert int(policy.act(torch.tensor([[0.45, 0.45, 0.1, 0.1]]), {})[0]) == FORWARD  # far: 1%, the full step
+    policy.epsilon = 1.0
+    assert {int(policy.act(box, {})[0]) for _ in range(200)} == set(range(6, 13))  # the fine moves and stay
