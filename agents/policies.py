@@ -35,11 +35,20 @@ LEFT, RIGHT, FORWARD, BACKWARD, UP, DOWN = (
     DIRECTIONS.index(d) for d in ("left", "right", "forward", "backward", "up", "down")
 )
 STAY_INDEX = action_names(stay_action=True).index(STAY)
-FINE_FROM = 0.02
-"""Where the env has the fine moves (env.fine_step_size), the servo and the DQN take them once the target's box
-covers this share of the image, and the full step farther out: success needs the target's own pixels to cover
-5%, and close up a full step passes over the few views in success, while far out half steps only cost time
-(docs/control.md §11)."""
+NEAR_AREA = (0.02, 0.25)
+NEAR_CENTRE = 0.3
+"""Where the env has the fine moves (env.fine_step_size), the servo and the DQN take them near success: the
+target's box covers NEAR_AREA of the image (success needs its own pixels to cover 5%) with its centre within
+NEAR_CENTRE of the image's centre (success: 0.15). There a full step passes over the few views in success;
+elsewhere (far, off-centre, pushed too close) half steps only cost time (docs/control.md §11)."""
+
+
+def near_target(box: np.ndarray) -> np.ndarray:
+    """(N,) bool: the boxes (N, 4+) that are near success (`NEAR_AREA`, `NEAR_CENTRE`), where the fine moves are taken."""
+    x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
+    area = w * h
+    centred = (np.abs(x + w / 2 - 0.5) <= NEAR_CENTRE) & (np.abs(y + h / 2 - 0.5) <= NEAR_CENTRE)
+    return (area >= NEAR_AREA[0]) & (area <= NEAR_AREA[1]) & centred
 
 
 def box_array(obs) -> np.ndarray:
@@ -214,8 +223,8 @@ class ServoPolicy:
     one orbit step moves the box by more than the centring tolerance (docs/task.md#occluders). `lead_in=False`
     leaves the lead-in out, for a servo that takes over after an exploration that has looked over already.
 
-    With `fine` it serves with the fine moves where the env has them (env.fine_step_size) once the box covers
-    `fine_from` of the image (`FINE_FROM`); its sweep keeps the full step (docs/control.md §11)."""
+    With `fine` it serves with the fine moves where the env has them (env.fine_step_size) while the box is near
+    success (`near_target`); its sweep keeps the full step (docs/control.md §11)."""
 
     def __init__(
         self,
@@ -227,12 +236,10 @@ class ServoPolicy:
         look_over: bool = False,
         lead_in: bool | None = None,
         fine: bool = True,
-        fine_from: float = FINE_FROM,
     ):
         self.num_envs = env.unwrapped.num_envs
         names = action_names_for(num_actions(env))
         self.fine_offset = names.index(FINE[0]) if fine and FINE[0] in names else 0  # FINE is in DIRECTIONS' order
-        self.fine_from = fine_from
         self.center_tol = center_tol
         lead_in = look_over if lead_in is None else lead_in
         first = DIRECTIONS.index(first_sweep)
@@ -273,7 +280,7 @@ class ServoPolicy:
         action[~served] = sweep[~served]
         self.last_action[:] = action
         if self.fine_offset:
-            action[served & (w * h >= self.fine_from)] += self.fine_offset
+            action[served & near_target(box_array(obs))] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
@@ -329,8 +336,8 @@ class DQNPolicy:
     repeat it to the episode's end (docs/control.md §7).
 
     In an env with the fine moves (env.fine_step_size) a network trained on the six directions (and `stay`) takes
-    the fine move of each direction it chooses once the box covers `fine_from` of the image (`FINE_FROM`): close
-    up, half a step lands on views in success that a full one passes over (docs/control.md §11). `last_action`
+    the fine move of each direction it chooses while the box is near success (`near_target`): there half a step
+    lands on views in success that a full one passes over (docs/control.md §11). `last_action`
     and the state's one-hot are the network's own indices; `act` returns the env's."""
 
     def __init__(
@@ -342,7 +349,6 @@ class DQNPolicy:
         q_network=None,
         with_last_action: bool = False,
         avoid_refused: bool = False,
-        fine_from: float = FINE_FROM,
     ):
         if (checkpoint is None) == (q_network is None):
             raise ValueError("DQNPolicy needs exactly one of checkpoint= (a file) or q_network= (a live network)")
@@ -354,7 +360,6 @@ class DQNPolicy:
         self.num_actions = self.q_network.num_actions
         self.to_env = env_actions(self.num_actions, num_actions(env))
         self.to_env_full = env_actions(self.num_actions, num_actions(env), fine=False)
-        self.fine_from = fine_from
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -385,8 +390,7 @@ class DQNPolicy:
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action
-        box = box_array(obs)
-        return np.where(box[:, 2] * box[:, 3] >= self.fine_from, self.to_env[action], self.to_env_full[action])
+        return np.where(near_target(box_array(obs)), self.to_env[action], self.to_env_full[action])
 
 
 class MemoryPolicy:

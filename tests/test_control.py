@@ -36,7 +36,13 @@ from mani_active_vision.agents.policies import (
 )
 from mani_active_vision.agents.q_network import QNetwork, load_q_network, save_q_network
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.envs import DQN_FCN_THRESHOLDS, FCN_BOX_HOLD_STEPS, FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import (
+    DQN_FCN_THRESHOLDS,
+    DQN_FINE_STEP_SIZE,
+    FCN_BOX_HOLD_STEPS,
+    FCN_IMAGE_SIZE,
+    EnvConfig,
+)
 from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
@@ -474,6 +480,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         box_hold_steps=FCN_BOX_HOLD_STEPS,
         fcn_acquire_threshold=acquire,
         fcn_track_threshold=track,
+        fine_step_size=DQN_FINE_STEP_SIZE,  # trained on the full step, it takes half steps near the target
     )
     # the hold_stay_decay preset: it stays well inside success, sees the mask stats, does not repeat a refused
     # action, and its learning rate was decayed

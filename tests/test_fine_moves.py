@@ -1,5 +1,5 @@
 """The optional fine moves: the six directions again at `fine_step_size`, through the env, the servo and the DQN
-(the fine moves near the target, `FINE_FROM`), the DQN's mirrored transitions and the recording's action names."""
+(the fine moves near success, `near_target`), the DQN's mirrored transitions and the recording's action names."""
 
 import numpy as np
 import pytest
@@ -53,7 +53,9 @@ def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
         servo = ServoPolicy(env, fine=fine)
         servo.reset(None, {})
         assert act(servo, [0.4, 0.4, 0.2, 0.2]) == served  # centred, near (4% of the image): forward
-        assert act(servo, [0.45, 0.45, 0.1, 0.1]) == FORWARD  # far (1%, below FINE_FROM): the full step
+        assert act(servo, [0.45, 0.45, 0.1, 0.1]) == FORWARD  # far (1% of the image): the full step
+        assert act(servo, [0.1, 0.1, 0.8, 0.8]) == FORWARD  # too close (64% of the image): the full step
+        assert act(servo, [0.0, 0.4, 0.2, 0.2]) == mav.DIRECTIONS.index("left")  # off-centre by 0.4: the full step
         assert act(servo, [0, 0, 0, 0]) == mav.DIRECTIONS.index("left")  # unseen: the sweep's full step
 
 
