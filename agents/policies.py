@@ -398,19 +398,19 @@ class MemoryPolicy:
     (while training) the live `agent`. Greedy (the most probable action) unless `sample`. Its GRU state and
     its previous action are reset by `reset` (an episode's start) and carried across `act` calls. The env
     must give the box with the camera's commanded position (`EnvConfig(with_ee_pos=True)`: a checkpoint
-    trained so sets it) and take the agent's number of actions."""
+    trained so sets it) and take the agent's actions; like `DQNPolicy`, in an env with the fine moves it takes
+    them near success."""
 
     def __init__(self, env, checkpoint: str | None = None, seed: int = 0, agent=None, sample: bool = False):
         if (checkpoint is None) == (agent is None):
             raise ValueError("MemoryPolicy needs exactly one of checkpoint= (a file) or agent= (a live network)")
         self.agent, self.config = (agent, {}) if agent is not None else load_agent(checkpoint)
         self.num_envs = env.unwrapped.num_envs
-        self.num_actions = num_actions(env)
-        if self.num_actions != self.agent.num_actions:
-            raise ValueError(
-                f"the memory agent has {self.agent.num_actions} actions, the env takes {self.num_actions}: "
-                "train and act with the same stay_action"
-            )
+        self.num_actions = self.agent.num_actions
+        self.to_env = env_actions(
+            self.num_actions, num_actions(env)
+        )  # the fine moves near success, if the env has them
+        self.to_env_full = env_actions(self.num_actions, num_actions(env), fine=False)
         box_dim = box_array(env.observation_space.sample()).shape[-1]
         if box_dim not in STATE_DIMS:
             raise ValueError(
@@ -440,8 +440,9 @@ class MemoryPolicy:
             action = torch.multinomial(torch.softmax(logits, -1), 1, generator=self.generator)[:, 0]
         else:
             action = logits.argmax(-1)
-        self.last_action[:] = action.numpy()
-        return action.numpy().astype(np.int64)
+        action = action.numpy().astype(np.int64)
+        self.last_action[:] = action
+        return np.where(near_target(box_array(obs)), self.to_env[action], self.to_env_full[action])
 
 
 POLICIES: dict[str, Callable] = {

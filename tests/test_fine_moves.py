@@ -8,8 +8,9 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import ServoPolicy, env_actions, make_policy
+from mani_active_vision.agents.policies import MemoryPolicy, ServoPolicy, env_actions, make_policy
 from mani_active_vision.agents.q_network import load_q_network
+from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, input_dim
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import FINE, STAY, action_names, action_names_for
 from mani_active_vision.envs import EnvConfig
@@ -93,3 +94,20 @@ def test_a_dqn_trained_on_the_full_step_acts_with_the_fine_moves_where_the_env_h
     assert int(policy.act(torch.tensor([[0.45, 0.45, 0.1, 0.1]]), {})[0]) == FORWARD  # far: 1%, the full step
     policy.epsilon = 1.0
     assert {int(policy.act(box, {})[0]) for _ in range(200)} == set(range(6, 13))  # the fine moves and stay
+
+
+def test_the_memory_agent_takes_the_fine_moves_near_success():
+    env = mav.make_env(EnvConfig(max_episode_steps=5, with_ee_pos=True, stay_action=True, fine_step_size=0.025))
+    try:
+        policy = MemoryPolicy(env, agent=RecurrentActorCritic(input_dim(7), 7, 8))
+        policy.reset(None, {})
+        near, far = (
+            torch.tensor([[0.4, 0.4, 0.2, 0.2, 0.3, 0.0, 0.9]]),
+            torch.tensor([[0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.9]]),
+        )
+        for obs, mapping in ((near, policy.to_env), (far, policy.to_env_full)):
+            action = int(policy.act(obs, {})[0])
+            assert action == mapping[policy.last_action[0]] and 0 <= policy.last_action[0] < 7
+        assert policy.to_env.tolist() == [7, 8, 9, 10, 11, 12, 6] and policy.to_env_full.tolist() == list(range(7))
+    finally:
+        env.close()
