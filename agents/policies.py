@@ -255,7 +255,8 @@ class ServoPolicy:
         self.last_action[:] = -1
 
     def act(self, obs, info) -> np.ndarray:
-        x, y, w, h = box_array(obs)[:, :4].T
+        box = box_array(obs)
+        x, y, w, h = box[:, :4].T
         leading = self.sweep.leading()
         sweep = self.sweep.act(info)  # called every step so that refusals while sweeping turn it
         cx, cy = x + w / 2, y + h / 2
@@ -280,7 +281,7 @@ class ServoPolicy:
         action[~served] = sweep[~served]
         self.last_action[:] = action
         if self.fine_offset:
-            action[served & near_target(box_array(obs))] += self.fine_offset
+            action[served & near_target(box)] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
