@@ -121,6 +121,22 @@ def env_actions(network_actions: int, env_actions: int, fine: bool = True) -> np
     return np.array([env.index(name) for name in names])
 
 
+class ActionMap:
+    """A learned policy's own actions (the six directions, and `stay` if it has it) as the env's: the same
+    actions, or where the env has the fine moves and the policy does not, the fine moves while the box is near
+    success (`near_target`). `to_env` and `to_env_full` are the two tables (`env_actions`)."""
+
+    def __init__(self, policy_actions: int, env_actions_count: int):
+        self.to_env = env_actions(policy_actions, env_actions_count)
+        self.to_env_full = env_actions(policy_actions, env_actions_count, fine=False)
+        self.fine = not np.array_equal(self.to_env, self.to_env_full)
+
+    def __call__(self, action: np.ndarray, obs) -> np.ndarray:
+        if not self.fine:  # no fine moves in the env: nothing to decide per step
+            return self.to_env_full[action]
+        return np.where(near_target(box_array(obs)), self.to_env[action], self.to_env_full[action])
+
+
 def rule_out_refused(q: torch.Tensor, refused: np.ndarray, last_action: np.ndarray) -> torch.Tensor:
     """`q` (N, actions) with each env's last action set to -inf where the controller has just refused it: a
     refused step leaves the state as it was, so a memoryless greedy policy would repeat it (`avoid_refused`)."""
@@ -331,14 +347,15 @@ class DQNPolicy:
     """A Q-network: argmax Q, or ε-greedy with `epsilon`. From an `agents.dqn` checkpoint file, or (while
     training) the live `q_network` itself. With `with_last_action` (read from the checkpoint's config) the
     network's state is the box followed by a one-hot of this policy's own previous action (zeros at the
-    start of an episode): `state(obs)`. The env's action count (6, or 7 with `stay`) must be the network's.
+    start of an episode): `state(obs)`. The env takes the network's actions (6, or 7 with `stay`), and may add
+    the fine moves (`ActionMap`).
     With `avoid_refused` (read from the checkpoint's config too) a greedy action the controller has just refused
     is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
     repeat it to the episode's end (docs/control.md §7).
 
     In an env with the fine moves (env.fine_step_size) a network trained on the six directions (and `stay`) takes
     the fine move of each direction it chooses while the box is near success (`near_target`): there half a step
-    lands on views in success that a full one passes over (docs/control.md §11). `last_action`
+    lands on views in success that a full one passes over (docs/control.md §11; `ActionMap`). `last_action`
     and the state's one-hot are the network's own indices; `act` returns the env's."""
 
     def __init__(
@@ -359,8 +376,7 @@ class DQNPolicy:
         self.avoid_refused = bool(self.config.get("avoid_refused", avoid_refused))
         self.last_action = np.full(self.num_envs, -1)
         self.num_actions = self.q_network.num_actions
-        self.to_env = env_actions(self.num_actions, num_actions(env))
-        self.to_env_full = env_actions(self.num_actions, num_actions(env), fine=False)
+        self.action_map = ActionMap(self.num_actions, num_actions(env))
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -391,7 +407,7 @@ class DQNPolicy:
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action
-        return np.where(near_target(box_array(obs)), self.to_env[action], self.to_env_full[action])
+        return self.action_map(action, obs)
 
 
 class MemoryPolicy:
@@ -408,10 +424,7 @@ class MemoryPolicy:
         self.agent, self.config = (agent, {}) if agent is not None else load_agent(checkpoint)
         self.num_envs = env.unwrapped.num_envs
         self.num_actions = self.agent.num_actions
-        self.to_env = env_actions(
-            self.num_actions, num_actions(env)
-        )  # the fine moves near success, if the env has them
-        self.to_env_full = env_actions(self.num_actions, num_actions(env), fine=False)
+        self.action_map = ActionMap(self.num_actions, num_actions(env))
         box_dim = box_array(env.observation_space.sample()).shape[-1]
         if box_dim not in STATE_DIMS:
             raise ValueError(
@@ -443,7 +456,7 @@ class MemoryPolicy:
             action = logits.argmax(-1)
         action = action.numpy().astype(np.int64)
         self.last_action[:] = action
-        return np.where(near_target(box_array(obs)), self.to_env[action], self.to_env_full[action])
+        return self.action_map(action, obs)
 
 
 POLICIES: dict[str, Callable] = {

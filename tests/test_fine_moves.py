@@ -105,9 +105,10 @@ def test_the_memory_agent_takes_the_fine_moves_near_success():
             torch.tensor([[0.4, 0.4, 0.2, 0.2, 0.3, 0.0, 0.9]]),
             torch.tensor([[0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.9]]),
         )
-        for obs, mapping in ((near, policy.to_env), (far, policy.to_env_full)):
+        tables = policy.action_map
+        for obs, mapping in ((near, tables.to_env), (far, tables.to_env_full)):
             action = int(policy.act(obs, {})[0])
             assert action == mapping[policy.last_action[0]] and 0 <= policy.last_action[0] < 7
-        assert policy.to_env.tolist() == [7, 8, 9, 10, 11, 12, 6] and policy.to_env_full.tolist() == list(range(7))
+        assert tables.to_env.tolist() == [7, 8, 9, 10, 11, 12, 6] and tables.to_env_full.tolist() == list(range(7))
     finally:
         env.close()
