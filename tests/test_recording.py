@@ -169,7 +169,9 @@ def test_ctrl_c_leaves_a_valid_file(tmp_path):
     # the episode loop stops between steps: every step is logged whole
     assert rows["world/env0/camera/image/rgb"] == rows["env0/action"] + rows["env0/target_image"]
     outcomes = column_by_step(path, "env0/outcome", "TextLog:text")
-    assert "interrupted" in outcomes[max(outcomes)][0]
+    last = outcomes[max(outcomes)][0]
+    # the episode in progress is closed as interrupted; a Ctrl-C between two episodes leaves none in progress
+    assert "interrupted" in last or ("ended" in last and "starts" not in last), last
 
 
 def test_unwritable_path_fails_before_the_rollout(tmp_path):
