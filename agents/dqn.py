@@ -218,6 +218,11 @@ class Args:
     docs/control.md §9, not adopted; not in the paper)"""
     snapshot_every: int = 10
     """training episodes between the snapshots averaged (with snapshots)"""
+    fine_as_deployed: bool = False
+    """with env.fine_step_size: the network keeps the six directions (and `stay`) and, as it is deployed, takes each
+    direction's fine move while the box is near success (`policies.ActionMap`), so that it learns the moves it will
+    make; the stored actions are the network's own. Off: the network learns all of the env's actions, the fine moves
+    among them (docs/control.md §11; not in the paper)"""
     run_dir: str = "runs/dqn"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -334,6 +339,18 @@ def mirrored_actions(count: int) -> np.ndarray:
     names = action_names_for(count)
     swap = {"left": "right", "right": "left", "left_fine": "right_fine", "right_fine": "left_fine"}
     return np.array([names.index(swap.get(name, name)) for name in names])
+
+
+def network_actions(env_actions: int, fine_as_deployed: bool) -> np.ndarray:
+    """For each of the env's actions, the Q-network's: the same (it learns them all), or with `fine_as_deployed`
+    and an env with the fine moves, each fine move its direction's (`Args.fine_as_deployed`)."""
+    names = action_names_for(env_actions)
+    if not fine_as_deployed:
+        return np.arange(env_actions)
+    if not any(name.endswith("_fine") for name in names):
+        raise ValueError("fine_as_deployed maps the fine moves onto the six directions: set env.fine_step_size > 0")
+    network = [name for name in names if not name.endswith("_fine")]
+    return np.array([network.index(name.removesuffix("_fine")) for name in names])
 
 
 def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False) -> np.ndarray:
@@ -623,6 +640,8 @@ def train(args: Args, progress: bool = True) -> dict:
     n = args.num_envs
     env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
     actions = num_actions(env)  # 6, 7 with env.stay_action, 12 or 13 with env.fine_step_size
+    to_network = network_actions(actions, args.fine_as_deployed)  # the env's action -> the network's
+    actions = int(to_network.max()) + 1
     mirror_action = mirrored_actions(actions)
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
@@ -682,7 +701,7 @@ def train(args: Args, progress: bool = True) -> dict:
                 forced = push_left > 0
                 action, push_left = np.where(forced, push_direction, action), push_left - forced
                 acted = mixed.demo | forced  # the state's last direction is the one taken
-                learner.last_action[acted] = action[acted]
+                learner.last_action[acted] = to_network[action[acted]]
                 next_obs, reward, terminated, truncated, info = env.step(action)
                 final_obs, final_info = last_step(next_obs, info)  # before a vector env's same-step reset
                 if args.box_dropout:  # the same draw for the step's observation and its episode's last one
@@ -702,8 +721,9 @@ def train(args: Args, progress: bool = True) -> dict:
                     reward_now = learner_rewards[i](reward[i : i + 1], view, stayed=action[i] == STAY_INDEX)
                     learner_return[i] += reward_now
                     if learner_acts[i]:  # the script's steps are not the learner's experience
-                        pushed = windows[i].push(states[i], action[i], reward_now, next_states[i], ended, done)
-                        for s0, a0, discounted, s_n, final, steps in pushed:
+                        stored = to_network[action[i]]
+                        ready = windows[i].push(states[i], stored, reward_now, next_states[i], ended, done)
+                        for s0, a0, discounted, s_n, final, steps in ready:
                             buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
                             if args.mirror_augment:
                                 mirrored = (

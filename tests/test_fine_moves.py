@@ -74,6 +74,28 @@ def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):
     assert action_name(np.array([7]), names) == "left_fine" and action_name(np.array([6])) == STAY
 
 
+def test_training_with_the_fine_moves_as_deployed_keeps_the_networks_seven_actions(tmp_path):
+    assert dqn.network_actions(13, True).tolist() == [0, 1, 2, 3, 4, 5, 6, 0, 1, 2, 3, 4, 5]
+    assert dqn.network_actions(12, True).tolist() == [0, 1, 2, 3, 4, 5] * 2
+    assert dqn.network_actions(13, False).tolist() == list(range(13))
+    with pytest.raises(ValueError, match="fine_as_deployed maps the fine moves.*env.fine_step_size > 0"):
+        dqn.network_actions(7, True)
+    env = EnvConfig(max_episode_steps=40, stay_action=True, fine_step_size=0.025)
+    args = dqn.Args(
+        **dqn.SHAPED,
+        env=env,
+        episodes=1,
+        learning_starts=10,
+        demo_episodes=1,
+        fine_as_deployed=True,
+        run_dir=str(tmp_path),
+    )
+    result = dqn.train(args, progress=False)
+    q_network, config = load_q_network(result["checkpoint"])
+    assert q_network.num_actions == 7 and q_network.state_dim == 4 + 7 and config["fine_as_deployed"]
+    assert result["history"][0]["success"]  # the servo's demonstration, its fine moves near success among its steps
+
+
 def test_a_dqn_trained_on_the_full_step_acts_with_the_fine_moves_where_the_env_has_them():
     assert env_actions(7, 13).tolist() == [7, 8, 9, 10, 11, 12, 6] and env_actions(6, 12).tolist() == list(range(6, 12))
     assert env_actions(13, 13).tolist() == list(range(13)) and env_actions(7, 7).tolist() == list(range(7))
