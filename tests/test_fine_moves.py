@@ -94,6 +94,7 @@ def test_training_with_the_fine_moves_as_deployed_keeps_the_networks_seven_actio
     q_network, config = load_q_network(result["checkpoint"])
     assert q_network.num_actions == 7 and q_network.state_dim == 4 + 7 and config["fine_as_deployed"]
     assert result["history"][0]["success"]  # the servo's demonstration, its fine moves near success among its steps
+    assert not result["history"][0]["pushed"]  # no training pushes in this run
 
 
 def test_a_dqn_trained_on_the_full_step_acts_with_the_fine_moves_where_the_env_has_them():
