@@ -46,7 +46,9 @@ episodes and seeds, the same updates per env step; 1, the default, is the env in
 TensorBoard is the optional extra `track`); the learning curve is a PNG either way.
 `select_every` validates the greedy agent now and then and saves the network that succeeded most, not the last
 (off by default; measured in docs/control.md §7). `snapshots` keeps instead the mean Q of the network's last
-states (off by default; measured in docs/control.md §9). The shipped agent's preset is `hold_stay_decay`.
+states (off by default; measured in docs/control.md §9). The shipped agent's preset is `hold_stay_fine`:
+`hold_stay_decay` (stay, the mask stats, the learning rate decayed) trained with the fine moves near success, as it
+acts when deployed (docs/control.md §12).
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ from mani_active_vision.agents.policies import (
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
 from mani_active_vision.directions import DIRECTIONS, action_names_for
-from mani_active_vision.envs import EnvConfig, make_env
+from mani_active_vision.envs import DQN_FINE_STEP_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, first_env
@@ -836,6 +838,15 @@ DECAY = {"end_learning_rate": 1e-4}
 """Added to a preset: the learning rate decayed linearly from 1e-3 to 1e-4 over the training episodes, like ε, so
 that the last episodes move the network less (docs/control.md §7 and §9)."""
 
+FINE_AS_DEPLOYED = {
+    **HOLD_STAY,
+    "env": HOLD_STAY["env"].replace(fine_step_size=DQN_FINE_STEP_SIZE),
+    "fine_as_deployed": True,
+}
+"""Added to a preset in place of HOLD_STAY: HOLD_STAY with the fine moves of the deployed agent in training too, the
+network's seven actions taking half steps near success as they will when it acts (`Args.fine_as_deployed`;
+docs/control.md §12)."""
+
 PRESETS = {
     "paper": ("the paper's configuration", Args()),
     "shaped": ("the paper's network and schedule, learning from a shaped reward that ends at success", Args(**SHAPED)),
@@ -848,8 +859,12 @@ PRESETS = {
         Args(**HOLD, **DEMO, **WIDE, **HOLD_STAY),
     ),
     "hold_stay_decay": (
-        "hold_stay with the learning rate decayed to 1e-4 over training, a steadier last network (the shipped agent's)",
+        "hold_stay with the learning rate decayed to 1e-4 over training, a steadier last network",
         Args(**HOLD, **DEMO, **WIDE, **HOLD_STAY, **DECAY),
+    ),
+    "hold_stay_fine": (
+        "hold_stay_decay trained with the fine moves near success, as it is deployed (the shipped agent's)",
+        Args(**HOLD, **DEMO, **WIDE, **FINE_AS_DEPLOYED, **DECAY),
     ),
 }
 

@@ -1,10 +1,11 @@
 """The main job: train the DQN (with the scripted exploration) in ActiveVisionFind-v0, evaluate it,
 draw its learning curves and record it.
 
-Trains `agents.dqn` (the paper's schedule: 100 episodes, ε 0.1 -> 0.02; by default the `hold_stay_decay`
+Trains `agents.dqn` (the paper's schedule: 100 episodes, ε 0.1 -> 0.02; by default the `hold_stay_fine`
 preset: the shaped learner's reward, without which it does not learn in 100 episodes, paying for time well
 inside success, the scripted servo acting the first 10 episodes, 128 hidden units, a seventh action `stay`
-and the mask's share and centroid in the state, the learning rate decayed to 1e-4; docs/control.md §7, §9) on the
+and the mask's share and centroid in the state, the learning rate decayed to 1e-4, half steps near success as
+deployed; docs/control.md §7, §9, §12) on the
 ground-truth box (privileged training: learning on the FCN's box, whose false positives jump between
 look-alike objects, failed), then evaluates the greedy agent (exploration, then the DQN) on fixed
 evaluation seeds (unseen objects) acting on the box from the shipped FCN at 128² (`envs.FCN_IMAGE_SIZE`), held
@@ -37,13 +38,13 @@ from mani_active_vision.recording import RerunRecorder
 
 @dataclass
 class Args:
-    env: EnvConfig = field(default_factory=lambda: dqn.PRESETS["hold_stay_decay"][1].env)
+    env: EnvConfig = field(default_factory=lambda: dqn.PRESETS["hold_stay_fine"][1].env)
     """the env the DQN learns in (default: the preset's; its box_source is the training box: ground_truth)"""
     seed: int = 0
     """training seed (0: the shipped agent's, scripts/make_dqn.sh)"""
-    preset: str = "hold_stay_decay"
-    """the DQN's configuration (agents.dqn.PRESETS): hold_stay_decay, hold_stay, hold_demo_wide, hold_demo,
-    shaped_demo, hold, shaped, paper"""
+    preset: str = "hold_stay_fine"
+    """the DQN's configuration (agents.dqn.PRESETS): hold_stay_fine, hold_stay_decay, hold_stay, hold_demo_wide,
+    hold_demo, shaped_demo, hold, shaped, paper"""
     episodes: int = 100
     """training episodes (paper: 100)"""
     eval_episodes: int = 10
@@ -51,7 +52,8 @@ class Args:
     eval_object_set: str = "unseen"
     """the objects of the evaluation and recorded episodes (training uses env.object_set: train)"""
     eval_fine_step_size: float = DQN_FINE_STEP_SIZE
-    """the evaluation env's fine moves, which the DQN trained on the full step takes near the target (0: none)"""
+    """the evaluation env's fine moves, which the DQN takes near the target (0: none; a network trained on the full
+    step takes them too)"""
     box_source: str = "fcn"
     """the box the agent acts on when evaluated and recorded: fcn (the shipped one-shot segmentation network,
     as in the paper) or ground_truth; the other one is evaluated too"""

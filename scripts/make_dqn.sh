@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
-# Reproduce the shipped DQN (agents/weights/dqn.pt): train the chosen preset and seed (default hold_stay_decay, seed
+# Reproduce the shipped DQN (agents/weights/dqn.pt): train the chosen preset and seed (default hold_stay_fine, seed
 # 0, chosen before training; 100 training episodes, ground-truth box, train objects; one process,
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
 # baselines/ship_dqn.py, with the verifier bars of envs.DQN_FCN_THRESHOLDS: 0.97 to acquire a region, 0.9 to
 # keep it; and the fine moves of envs.DQN_FINE_STEP_SIZE, half steps near the target), then evaluate it as
-# deployed on 50 held-out episodes (docs/control.md §9, §11).
+# deployed on 50 held-out episodes (docs/control.md §9, §11, §12).
+# The hold_stay_decay agent shipped before it (trained on the full step, the same fine moves when it acts; no longer
+# shipped) is remade by   PRESET=hold_stay_decay SEED=0 OUT=<a file> bash scripts/make_dqn.sh
 # The hold_stay agent shipped before it (the shipped memory agent's teacher; docs/search.md) is remade by
 #   PRESET=hold_stay SEED=0 OUT=agents/weights/dqn_hold_stay.pt \
 #   SHIP_ARGS="--fcn-acquire-threshold 0.97 --fcn-track-threshold 0.9" bash scripts/make_dqn.sh   (no fine moves)
@@ -14,7 +16,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 PY=.venv/bin/python
-PRESET=${PRESET:-hold_stay_decay}
+PRESET=${PRESET:-hold_stay_fine}
 SEED=${SEED:-0}
 OUT=${OUT:-agents/weights/dqn.pt}
 RUN=runs/make_dqn/${PRESET}_seed${SEED}

@@ -480,10 +480,10 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         box_hold_steps=FCN_BOX_HOLD_STEPS,
         fcn_acquire_threshold=acquire,
         fcn_track_threshold=track,
-        fine_step_size=DQN_FINE_STEP_SIZE,  # trained on the full step, it takes half steps near the target
     )
-    # the hold_stay_decay preset: it stays well inside success, sees the mask stats, does not repeat a refused
-    # action, and its learning rate was decayed
+    # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused
+    # action, its learning rate was decayed, and it learnt with the half steps near the target it takes deployed
+    assert trained.fine_step_size == DQN_FINE_STEP_SIZE and config["fine_as_deployed"]
     assert deployed.stay_action and deployed.with_mask_stats and config["hold_margin"] == 0.15
     assert config["avoid_refused"] and config["hidden_units"] == 128 and config["end_learning_rate"] == 1e-4
     env = mav.make_env(deployed.replace(max_episode_steps=25))
