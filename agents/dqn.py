@@ -224,7 +224,7 @@ class Args:
     """with env.fine_step_size: the network keeps the six directions (and `stay`) and, as it is deployed, takes each
     direction's fine move while the box is near success (`policies.ActionMap`), so that it learns the moves it will
     make; the stored actions are the network's own. Off: the network learns all of the env's actions, the fine moves
-    among them (docs/control.md §11; not in the paper)"""
+    among them (docs/control.md §11, §12; not in the paper)"""
     run_dir: str = "runs/dqn"
     """where the checkpoint and history go (a folder per run is made inside)"""
     run_name: str = ""
@@ -598,6 +598,8 @@ def train(args: Args, progress: bool = True) -> dict:
         )
     if args.end_learning_rate < 0:
         raise ValueError(f"end_learning_rate={args.end_learning_rate} must be ≥ 0 (0: constant learning_rate)")
+    if args.fine_as_deployed and not args.env.fine_step_size:
+        raise ValueError("fine_as_deployed maps the fine moves onto the six directions: set env.fine_step_size > 0")
     if args.look_over and not args.explore:
         raise ValueError("look_over is the exploration's lead-in: it needs explore")
     if args.env.box_source == "none":

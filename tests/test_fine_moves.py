@@ -80,6 +80,8 @@ def test_training_with_the_fine_moves_as_deployed_keeps_the_networks_seven_actio
     assert dqn.network_actions(13, False).tolist() == list(range(13))
     with pytest.raises(ValueError, match="fine_as_deployed maps the fine moves.*env.fine_step_size > 0"):
         dqn.network_actions(7, True)
+    with pytest.raises(ValueError, match="fine_as_deployed .*env.fine_step_size > 0"):  # before any env is made
+        dqn.train(dqn.Args(fine_as_deployed=True, run_dir=str(tmp_path)), progress=False)
     env = EnvConfig(max_episode_steps=40, stay_action=True, fine_step_size=0.025)
     args = dqn.Args(
         **dqn.SHAPED,
