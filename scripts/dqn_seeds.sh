@@ -8,7 +8,7 @@
 # Two lanes of baselines/seeds.py, one per core with one render thread each (each lane evaluates the servo once
 # per box: neither has cached it until it finishes). Finished runs and evaluations under $OUT are skipped on a
 # rerun; the tables are $OUT/${PRESET}_fine_table.md and $OUT/${PRESET}_fcn_fine_table.md (without _fine for
-# FULL_STEP's). About 25 min on 2 cores (35 min with FULL_STEP=1).
+# FULL_STEP's). About 13 min on 2 cores (about 25 with FULL_STEP=1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
