@@ -53,9 +53,10 @@ class Args:
     """objects of the evaluation episodes (training uses env.object_set)"""
     eval_box_source: str = "ground_truth"
     """the box the agent acts on when evaluated: ground_truth or fcn"""
-    eval_fine_step_size: float = 0.0
-    """the evaluation env's fine moves (EnvConfig.fine_step_size; 0: none): the DQN, trained on the full step,
-    and the servo take them near the target, as the shipped DQN is deployed (envs.DQN_FINE_STEP_SIZE)"""
+    eval_fine_step_size: float | None = None
+    """the evaluation env's fine moves (EnvConfig.fine_step_size; 0: none; None: the training env's, e.g. the
+    shipped preset's envs.DQN_FINE_STEP_SIZE): the DQN (trained with them or on the full step) and the servo take
+    them near the target, as the shipped DQN is deployed"""
     env: EnvConfig = field(default_factory=EnvConfig)
     """the training env (ground-truth box, train objects by default)"""
     out_dir: str = "runs/seeds"
@@ -99,8 +100,13 @@ def train_options(args: Args) -> dict:
 
 def eval_env_config(args: Args) -> EnvConfig:
     return args.env.replace(
-        object_set=args.eval_object_set, box_source=args.eval_box_source, fine_step_size=args.eval_fine_step_size
+        object_set=args.eval_object_set, box_source=args.eval_box_source, fine_step_size=eval_fine_step_size(args)
     )
+
+
+def eval_fine_step_size(args: Args) -> float:
+    """The evaluation's fine step: `eval_fine_step_size`, or where it is None the training env's."""
+    return args.env.fine_step_size if args.eval_fine_step_size is None else args.eval_fine_step_size
 
 
 def eval_suffix(args: Args) -> str:
@@ -112,7 +118,7 @@ def eval_suffix(args: Args) -> str:
 
 def fine(args: Args) -> str:
     """The suffix "_fine" where the evaluation has the fine moves, else ""."""
-    return "_fine" if args.eval_fine_step_size else ""
+    return "_fine" if eval_fine_step_size(args) else ""
 
 
 def references(args: Args) -> dict[int, float]:
@@ -211,7 +217,7 @@ def report(args: Args) -> str:
     table = "\n".join(lines)
     note = (
         f"\n\n({args.eval_episodes} evaluation episodes per seed from 1,000,000, {args.eval_object_set} objects, "
-        f"{args.eval_box_source} box{', fine moves near the target' if args.eval_fine_step_size else ''}; focus held "
+        f"{args.eval_box_source} box{', fine moves near the target' if eval_fine_step_size(args) else ''}; focus held "
         "over the successful episodes; in the mean row, focus held and steps to success are over the seeds where "
         "they exist)\n"
     )

@@ -26,8 +26,8 @@ lanes() {
 }
 FINE=(--eval-fine-step-size "$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")")
 if [ "${FULL_STEP:-0}" = 1 ]; then
-    lanes
-    lanes "${FCN[@]}"
+    lanes --eval-fine-step-size 0
+    lanes "${FCN[@]}" --eval-fine-step-size 0
 fi
 lanes "${FINE[@]}"
 lanes "${FCN[@]}" "${FINE[@]}"

@@ -510,6 +510,13 @@ def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(baseline_
     assert cli_with_preset_env(seeds.Args, ["--preset", "hold_demo_wide"]).env == EnvConfig()
     with pytest.raises(ValueError, match="preset='x' is not one of: paper"):
         cli_with_preset_env(seeds.Args, ["--preset", "x"])
+    # a preset trained with the fine moves is evaluated with them unless told otherwise, and its files say so
+    fine = cli_with_preset_env(seeds.Args, ["--preset", "hold_stay_fine"])
+    assert seeds.eval_env_config(fine).fine_step_size == DQN_FINE_STEP_SIZE and seeds.eval_suffix(fine) == "_fine"
+    full = cli_with_preset_env(seeds.Args, ["--preset", "hold_stay_fine", "--eval-fine-step-size", "0"])
+    assert seeds.eval_env_config(full).fine_step_size == 0 and seeds.eval_suffix(full) == ""
+    decay = cli_with_preset_env(seeds.Args, ["--preset", "hold_stay_decay", "--eval-fine-step-size", "0.025"])
+    assert seeds.eval_env_config(decay).fine_step_size == 0.025 and decay.env.fine_step_size == 0  # training: full step
 
 
 def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(baseline_script, monkeypatch, tmp_path):
