@@ -70,6 +70,7 @@ from tqdm import tqdm
 
 from mani_active_vision.agents.policies import (
     STAY_INDEX,
+    ActionMap,
     DQNPolicy,
     ExplorePolicy,
     ServoPolicy,
@@ -79,7 +80,7 @@ from mani_active_vision.agents.policies import (
     num_actions,
 )
 from mani_active_vision.agents.q_network import QNetwork, save_q_network
-from mani_active_vision.directions import DIRECTIONS, action_names_for
+from mani_active_vision.directions import DIRECTIONS, FINE, action_names_for
 from mani_active_vision.envs import DQN_FINE_STEP_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.json_io import save_json
@@ -341,18 +342,6 @@ def mirrored_actions(count: int) -> np.ndarray:
     names = action_names_for(count)
     swap = {"left": "right", "right": "left", "left_fine": "right_fine", "right_fine": "left_fine"}
     return np.array([names.index(swap.get(name, name)) for name in names])
-
-
-def network_actions(env_actions: int, fine_as_deployed: bool) -> np.ndarray:
-    """For each of the env's actions, the Q-network's: the same (it learns them all), or with `fine_as_deployed`
-    and an env with the fine moves, each fine move its direction's (`Args.fine_as_deployed`)."""
-    names = action_names_for(env_actions)
-    if not fine_as_deployed:
-        return np.arange(env_actions)
-    if not any(name.endswith("_fine") for name in names):
-        raise ValueError("fine_as_deployed maps the fine moves onto the six directions: set env.fine_step_size > 0")
-    network = [name for name in names if not name.endswith("_fine")]
-    return np.array([network.index(name.removesuffix("_fine")) for name in names])
 
 
 def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False) -> np.ndarray:
@@ -643,9 +632,9 @@ def train(args: Args, progress: bool = True) -> dict:
     push_rng = np.random.default_rng([args.seed, 2])  # likewise
     n = args.num_envs
     env = make_env(args.env) if n == 1 else make_vec_env(args.env, n, backend="cpu")  # worker processes
-    actions = num_actions(env)  # 6, 7 with env.stay_action, 12 or 13 with env.fine_step_size
-    to_network = network_actions(actions, args.fine_as_deployed)  # the env's action -> the network's
-    actions = int(to_network.max()) + 1
+    env_actions = num_actions(env)  # 6, 7 with env.stay_action, 12 or 13 with env.fine_step_size
+    actions = env_actions - len(FINE) if args.fine_as_deployed else env_actions  # the network's
+    to_network = ActionMap(actions, env_actions).to_policy  # the env's action taken -> the network's, to store
     mirror_action = mirrored_actions(actions)
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 

@@ -124,12 +124,15 @@ def env_actions(network_actions: int, env_actions: int, fine: bool = True) -> np
 class ActionMap:
     """A learned policy's own actions (the six directions, and `stay` if it has it) as the env's: the same
     actions, or where the env has the fine moves and the policy does not, the fine moves while the box is near
-    success (`near_target`). `to_env` and `to_env_full` are the two tables (`env_actions`)."""
+    success (`near_target`). `to_env` and `to_env_full` are the two tables (`env_actions`); `to_policy` maps each
+    env action back to the policy's (a fine move to its direction), for a learner that stores its own actions."""
 
     def __init__(self, policy_actions: int, env_actions_count: int):
         self.to_env = env_actions(policy_actions, env_actions_count)
         self.to_env_full = env_actions(policy_actions, env_actions_count, fine=False)
         self.fine = not np.array_equal(self.to_env, self.to_env_full)
+        self.to_policy = np.full(env_actions_count, -1)  # every env action is one of the two tables'
+        self.to_policy[self.to_env_full] = self.to_policy[self.to_env] = np.arange(policy_actions)
 
     def __call__(self, action: np.ndarray, obs) -> np.ndarray:
         if not self.fine:  # no fine moves in the env: nothing to decide per step

@@ -8,7 +8,7 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import MemoryPolicy, ServoPolicy, env_actions, make_policy
+from mani_active_vision.agents.policies import ActionMap, MemoryPolicy, ServoPolicy, env_actions, make_policy
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, input_dim
 from mani_active_vision.box_state import BoxState
@@ -75,11 +75,9 @@ def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):
 
 
 def test_training_with_the_fine_moves_as_deployed_keeps_the_networks_seven_actions(tmp_path):
-    assert dqn.network_actions(13, True).tolist() == [0, 1, 2, 3, 4, 5, 6, 0, 1, 2, 3, 4, 5]
-    assert dqn.network_actions(12, True).tolist() == [0, 1, 2, 3, 4, 5] * 2
-    assert dqn.network_actions(13, False).tolist() == list(range(13))
-    with pytest.raises(ValueError, match="fine_as_deployed maps the fine moves.*env.fine_step_size > 0"):
-        dqn.network_actions(7, True)
+    assert ActionMap(7, 13).to_policy.tolist() == [0, 1, 2, 3, 4, 5, 6, 0, 1, 2, 3, 4, 5]
+    assert ActionMap(6, 12).to_policy.tolist() == [0, 1, 2, 3, 4, 5] * 2
+    assert ActionMap(13, 13).to_policy.tolist() == list(range(13))
     with pytest.raises(ValueError, match="fine_as_deployed .*env.fine_step_size > 0"):  # before any env is made
         dqn.train(dqn.Args(fine_as_deployed=True, run_dir=str(tmp_path)), progress=False)
     env = EnvConfig(max_episode_steps=40, stay_action=True, fine_step_size=0.025)
