@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
 import os
 import random
@@ -336,12 +337,15 @@ def margin_loss(q_network: QNetwork, batch: dict, margin: float) -> torch.Tensor
     return ((q + penalty).max(-1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
 
 
+@functools.cache
 def mirrored_actions(count: int) -> np.ndarray:
     """For an env with `count` actions (`action_names_for`), the action that mirrors each action left-right:
     left <-> right (and their fine moves), the others (stay too) unchanged."""
     names = action_names_for(count)
     swap = {"left": "right", "right": "left", "left_fine": "right_fine", "right_fine": "left_fine"}
-    return np.array([names.index(swap.get(name, name)) for name in names])
+    table = np.array([names.index(swap.get(name, name)) for name in names])
+    table.flags.writeable = False  # one table per count, shared (cached): it is read per stored transition
+    return table
 
 
 def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False) -> np.ndarray:

@@ -23,13 +23,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-import gymnasium as gym
 import numpy as np
 import torch
 
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import STATE_DIMS, features, load_agent
-from mani_active_vision.directions import DIRECTIONS, FINE, STAY, action_names, action_names_for
+from mani_active_vision.directions import DIRECTIONS, FINE, STAY, action_count, action_names, action_names_for
 
 LEFT, RIGHT, FORWARD, BACKWARD, UP, DOWN = (
     DIRECTIONS.index(d) for d in ("left", "right", "forward", "backward", "up", "down")
@@ -62,8 +61,7 @@ def box_array(obs) -> np.ndarray:
 def num_actions(env) -> int:
     """How many discrete actions the env takes: 6 directions, 7 with `stay`, 12 or 13 with the fine moves
     (`action_names_for`; batched or not)."""
-    space = env.action_space
-    return int(space.n) if isinstance(space, gym.spaces.Discrete) else int(space.nvec[0])
+    return action_count(env.action_space)
 
 
 def info_values(info, key: str, num_envs: int) -> np.ndarray:

@@ -37,9 +37,9 @@ class Args:
     scripts/make_dqn.sh ships the DQN with envs.DQN_FCN_THRESHOLDS)"""
     fcn_track_threshold: float = 0.0
     """the verifier probability a region near the last box needs to stay the box (0: the FCN checkpoint's)"""
-    fine_step_size: float = 0.0
-    """the deployed env's fine moves (0: none; scripts/make_dqn.sh ships the DQN with envs.DQN_FINE_STEP_SIZE:
-    trained on the full step, it takes half steps near the target)"""
+    fine_step_size: float | None = None
+    """the deployed env's fine moves (0: none; None: those it was trained with; scripts/make_dqn.sh ships the DQN
+    with envs.DQN_FINE_STEP_SIZE: it takes half steps near the target, trained with them or on the full step)"""
 
 
 def ship(args: Args) -> EnvConfig:
@@ -51,8 +51,10 @@ def ship(args: Args) -> EnvConfig:
     env = (
         EnvConfig.from_dict(trained)
         .on_fcn_box((args.fcn_acquire_threshold, args.fcn_track_threshold))
-        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps, fine_step_size=args.fine_step_size)
+        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
     )
+    if args.fine_step_size is not None:
+        env = env.replace(fine_step_size=args.fine_step_size)
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     torch.save(saved, args.out)

@@ -39,6 +39,15 @@ def action_names_for(count: int) -> tuple[str, ...]:
     return sets[count]
 
 
+def action_count(space: gym.Space) -> int:
+    """How many discrete actions a `Discrete` space, or a batched env's `MultiDiscrete` one, offers."""
+    if isinstance(space, gym.spaces.Discrete):
+        return int(space.n)
+    if isinstance(space, gym.spaces.MultiDiscrete):
+        return int(space.nvec.reshape(-1)[0])
+    raise TypeError(f"{space} is not a discrete action space: wrap the env in DiscreteDirections")
+
+
 def direction_deltas(
     pos: torch.Tensor, step: float, pitch: float, names: tuple[str, ...] = DIRECTIONS, fine_step: float = 0.0
 ) -> torch.Tensor:

@@ -39,9 +39,9 @@ needs the verifier's 0.97 to become the box, one near the last box keeps it at t
 look-alikes are taken for the target (docs/control.md §7; `baselines/ship_dqn.py`, the demo)."""
 
 DQN_FINE_STEP_SIZE = 0.025
-"""`EnvConfig.fine_step_size` where the shipped DQN is deployed (it is trained on the full step): close to the
-target it takes half steps, which land on views in success that the full step passes over (docs/control.md §11;
-`baselines/ship_dqn.py`, the demo)."""
+"""`EnvConfig.fine_step_size` where the shipped DQN learns and is deployed (the `hold_stay_fine` preset): close to
+the target it takes half steps, which land on views in success that the full step passes over (docs/control.md
+§11, §12; `baselines/ship_dqn.py`, the demo)."""
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,9 @@
 """The optional fine moves: the six directions again at `fine_step_size`, through the env, the servo and the DQN
 (the fine moves near success, `near_target`), the DQN's mirrored transitions and the recording's action names."""
 
+import dataclasses
+
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -12,7 +15,7 @@ from mani_active_vision.agents.policies import ActionMap, MemoryPolicy, ServoPol
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, input_dim
 from mani_active_vision.box_state import BoxState
-from mani_active_vision.directions import FINE, STAY, action_names, action_names_for
+from mani_active_vision.directions import FINE, STAY, action_count, action_names, action_names_for
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.recording.log import action_name
 
@@ -41,6 +44,22 @@ def test_the_fine_moves_follow_the_six_and_stay_and_are_shorter():
         mav.DiscreteDirections(cached_task(start_pose="search"), fine_step=0.05)
     with pytest.raises(ValueError, match=r"fine_step_size=0.1 must be in \[0, step_size=0.05\)"):
         EnvConfig(fine_step_size=0.1)
+
+
+def test_action_counts_of_discrete_spaces_and_a_clear_error_for_others():
+    assert action_count(gym.spaces.Discrete(13)) == 13 and action_count(gym.spaces.MultiDiscrete([7, 7])) == 7
+    with pytest.raises(TypeError, match="not a discrete action space: wrap the env in DiscreteDirections"):
+        action_count(gym.spaces.Box(-1, 1, (3,)))
+
+
+def test_shipping_keeps_the_fine_moves_a_dqn_was_trained_with_unless_told(baseline_script, tmp_path):
+    ship_dqn = baseline_script("ship_dqn")
+    trained = EnvConfig(stay_action=True, fine_step_size=0.025)
+    checkpoint = str(tmp_path / "q.pt")
+    torch.save({"state_dict": {}, "config": {"env": dataclasses.asdict(trained)}}, checkpoint)
+    kept = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "kept.pt")))
+    full = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "full.pt"), fine_step_size=0.0))
+    assert kept.fine_step_size == 0.025 and full.fine_step_size == 0.0 and kept.box_source == "fcn"
 
 
 def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():

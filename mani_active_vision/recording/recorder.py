@@ -26,7 +26,7 @@ import torch
 
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.boxes import mask_to_box
-from mani_active_vision.directions import action_names_for
+from mani_active_vision.directions import action_count, action_names_for
 from mani_active_vision.occluders import PANEL_SIZE
 from mani_active_vision.recording import log
 from mani_active_vision.recording.blueprint import blueprint
@@ -36,10 +36,8 @@ IMAGE_FORMATS = ("jpeg", "raw")
 
 def _action_names(space: gym.Space | None) -> tuple[str, ...]:
     """The names of a discrete action space's actions (`action_names_for`), else the default set."""
-    if isinstance(space, gym.spaces.Discrete):
-        return action_names_for(int(space.n))
-    if isinstance(space, gym.spaces.MultiDiscrete):
-        return action_names_for(int(space.nvec.reshape(-1)[0]))
+    if isinstance(space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete)):
+        return action_names_for(action_count(space))
     return log.DEFAULT_NAMES
 
 
