@@ -37,6 +37,7 @@ from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, 
 from mani_active_vision.metrics import first_index
 
 SEEN_PX = 20
+CLASSES = ("on a look-alike", "target missed", "on the target, not reached", "target never in view")
 """target pixels that count as "in view" """
 LATE_STEPS = 10
 """a first box this many steps after the target's first view counts as late (the sweep went on past it)"""
@@ -104,13 +105,23 @@ def classify(steps: list[dict]) -> str:
     return "on the target, not reached"
 
 
+def class_lines(classes: dict[str, list[int]]) -> list[str]:
+    """The report's count of lost episodes, then one line per class: how many, and their seeds (to record or
+    replay one: `evaluate.py --seed S --episodes 1`)."""
+    lines = [f"solved on the ground truth's box and not on the FCN's: {sum(map(len, classes.values()))}"]
+    for kind in CLASSES:
+        seeds = classes.get(kind, [])
+        lines.append(f"  {kind}: {len(seeds)}" + (f" (seeds {', '.join(map(str, seeds))})" if seeds else ""))
+    return lines
+
+
 def main(args: Args):
     if args.env.box_source != "fcn":
         raise ValueError(f"--env.box-source is {args.env.box_source!r}: this compares the FCN's box (fcn)")
     fcn_env = make_env(args.env)
     truth_env = make_env(dataclasses.replace(args.env, box_source="ground_truth"))
     fcn_policy, truth_policy = make(fcn_env, args), make(truth_env, args)
-    classes, relations, presences, successes = collections.Counter(), collections.Counter(), [], [0, 0]
+    classes, relations, presences, successes = collections.defaultdict(list), collections.Counter(), [], [0, 0]
     both = []  # (steps to success, first-box delay) on the ground truth's box and on the FCN's, both solved
     for seed in tqdm(list(eval_seeds(args.episodes, args.seed)), desc="episodes"):
         truth_steps_to_success, truth_steps = box_steps(truth_env, truth_policy, seed)
@@ -125,7 +136,7 @@ def main(args: Args):
         if not truth_ok or fcn_ok:
             continue
         kind = classify(steps)
-        classes[kind] += 1
+        classes[kind].append(seed)
         if kind == "on a look-alike":
             base = fcn_env.unwrapped
             slot_kinds = slot_relations(base.object_names[0], base.object_colors[0])
@@ -135,9 +146,7 @@ def main(args: Args):
     print(
         f"{'DQN ' + args.checkpoint if args.checkpoint else 'servo'} success on {args.episodes} episodes from {args.seed}: ground truth {successes[0] / args.episodes:.2f}, FCN {successes[1] / args.episodes:.2f}"
     )
-    print(f"solved on the ground truth's box and not on the FCN's: {sum(classes.values())}")
-    for kind in ("on a look-alike", "target missed", "on the target, not reached", "target never in view"):
-        print(f"  {kind}: {classes[kind]}")
+    print("\n".join(class_lines(classes)))
     if relations:
         print(f"  look-alikes by relation: {dict(relations)}")
         print(

@@ -708,6 +708,11 @@ def test_box_failures_sorts_a_lost_episode_by_what_the_box_lay_on(baseline_scrip
     # the first box came 2 steps after the target's first view (>= 20 px); NaN where either never comes
     assert failures.first_box_delay(steps((5, None), (25, None), (30, None), (40, 1))) == 2
     assert np.isnan(failures.first_box_delay(steps((5, None), (10, 0))))
+    # the report names each class's seeds, so that a lost episode can be replayed
+    lines = failures.class_lines({"target missed": [1000031, 1000038], "on a look-alike": [1000004]})
+    assert lines[0].endswith(": 3")
+    assert "  on a look-alike: 1 (seeds 1000004)" in lines and "  target missed: 2 (seeds 1000031, 1000038)" in lines
+    assert "  target never in view: 0" in lines
 
 
 def test_the_look_over_lead_in_comes_before_the_orbit_and_follows_a_dqn_trained_after_it():
