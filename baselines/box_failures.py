@@ -37,8 +37,9 @@ from mani_active_vision.evaluation.rollout_frames import RELATIONS, object_map, 
 from mani_active_vision.metrics import first_index
 
 SEEN_PX = 20
-CLASSES = ("on a look-alike", "target missed", "on the target, not reached", "target never in view")
 """target pixels that count as "in view" """
+CLASSES = ("on a look-alike", "target missed", "on the target, not reached", "target never in view")
+"""what `classify` calls a lost episode, in the report's order"""
 LATE_STEPS = 10
 """a first box this many steps after the target's first view counts as late (the sweep went on past it)"""
 
