@@ -86,6 +86,31 @@ def load_q_network(path: str) -> tuple[QNetwork, dict]:
     return q_network.eval(), config
 
 
+def ensemble_checkpoint(paths: list[str]) -> dict:
+    """One checkpoint whose network is the given DQN checkpoints' networks side by side (`QNetwork(ensemble=K)`,
+    acting on the mean of their Q-values), with the first one's config: runs of one preset from other seeds,
+    whose networks learned from different episodes and so err less alike than one run's (docs/control.md §14).
+    Each must hold one network of the first one's shape, trained in the same env; else a ValueError."""
+    networks, configs = zip(*(load_q_network(path) for path in paths))
+    first = configs[0]
+    for path, network, config in zip(paths, networks, configs):
+        if network.ensemble != 1:
+            raise ValueError(f"{path!r} holds {network.ensemble} networks: give the runs' own checkpoints")
+        for key in ("state_dim", "num_actions", "hidden_units", "env"):
+            if config.get(key) != first.get(key):
+                raise ValueError(f"{path!r} differs from {paths[0]!r} in {key}: {config.get(key)} != {first.get(key)}")
+    ensemble = QNetwork(first["state_dim"], first["hidden_units"], first["num_actions"], len(paths))
+    for k, network in enumerate(networks):
+        ensemble.member(k).load_state_dict(network.member(0).state_dict())
+    config = {
+        **first,
+        "members": len(paths),
+        "member_seeds": [config["seed"] for config in configs],
+        "member_episodes": sum(config["episodes"] for config in configs),
+    }
+    return {"state_dict": ensemble.state_dict(), "config": config}
+
+
 def checkpoint_env_config(path: str) -> EnvConfig:
     """The env config a checkpoint (the DQN's, or any `{"state_dict", "config": {"env": ...}}` file such as
     the memory agent's) was trained with."""

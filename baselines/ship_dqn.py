@@ -6,7 +6,8 @@ target), with the env it was trained in kept as config["trained_env"].
 
 scripts/make_dqn.sh makes the shipped agent this way; `baselines/evaluate.py --policy explore --then dqn
 --checkpoint agents/weights/dqn.pt` then evaluates it as deployed. Any `{"state_dict", "config": {"env"}}`
-checkpoint ships the same way: scripts/make_search.sh ships the memory agent (agents/search.py) with it.
+checkpoint ships the same way: scripts/make_search.sh ships the memory agent (agents/search.py) with it. With
+`--members`, several DQN runs ship as one agent acting on their mean Q (scripts/make_dqn_ensemble.sh).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 import torch
 import tyro
 
+from mani_active_vision.agents.q_network import ensemble_checkpoint
 from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, EnvConfig
 
 
@@ -25,6 +27,10 @@ from mani_active_vision.envs import FCN_BOX_HOLD_STEPS, EnvConfig
 class Args:
     checkpoint: str
     """the trained checkpoint (a DQN's q_network.pt, or the memory agent's agent.pt)"""
+    members: tuple[str, ...] = ()
+    """more DQN checkpoints (the same preset's runs from other seeds) to act with `checkpoint` as one agent, on
+    the mean of their Q-values (`q_network.ensemble_checkpoint`; their training episodes add up;
+    scripts/make_dqn_ensemble.sh)"""
     out: str = "agents/weights/dqn.pt"
     """where the shipped checkpoint goes"""
     object_set: str = "unseen"
@@ -45,7 +51,10 @@ class Args:
 def ship(args: Args) -> EnvConfig:
     """Copy the checkpoint with the deployed env: its training env on the FCN's box as deployed
     (`EnvConfig.on_fcn_box`), with the deployed objects."""
-    saved = torch.load(args.checkpoint, map_location="cpu", weights_only=True)
+    if args.members:
+        saved = ensemble_checkpoint([args.checkpoint, *args.members])
+    else:
+        saved = torch.load(args.checkpoint, map_location="cpu", weights_only=True)
     config = saved["config"]
     trained = config.get("trained_env", config["env"])
     env = (
