@@ -496,6 +496,47 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
     assert episode["steps_to_see"] < 25
 
 
+def test_the_shipped_ensemble_is_five_runs_of_the_shipped_preset_deployed_as_dqn_pt():
+    weights = os.path.join(ROOT, "agents", "weights")
+    ensemble, config = load_q_network(os.path.join(weights, "dqn_ensemble.pt"))
+    single, single_config = load_q_network(os.path.join(weights, "dqn.pt"))
+    assert (ensemble.ensemble, config["member_seeds"], config["member_episodes"]) == (5, [0, 1, 2, 3, 4], 500)
+    for key in ("env", "trained_env", "hidden_units", "fine_as_deployed", "hold_margin"):
+        assert config[key] == single_config[key]  # the same preset, trained and deployed alike
+    for name, tensor in single.network.state_dict().items():  # seed 0's run is dqn.pt's
+        assert torch.equal(ensemble.member(0).state_dict()[name], tensor)
+    state = torch.randn(8, ensemble.state_dim)
+    means = torch.stack([ensemble.member(k)(state) for k in range(5)]).mean(0)
+    torch.testing.assert_close(ensemble(state), means)  # it acts on the mean Q
+    env = mav.make_env(EnvConfig.from_dict(config["env"]).replace(max_episode_steps=25))
+    try:
+        policy = make_policy("explore", env, then="dqn", checkpoint=os.path.join(weights, "dqn_ensemble.pt"))
+        episode = evaluate(env, policy, [1_000_000], with_reference=False)[0]
+    finally:
+        env.close()
+    assert policy.handed_over.all() and policy.then.last_action[0] >= 0 and episode["steps_to_see"] < 25
+
+
+def test_several_runs_ship_as_one_agent_acting_on_their_mean_q(baseline_script, tmp_path):
+    ship_dqn = baseline_script("ship_dqn")
+    trained = EnvConfig(stay_action=True, with_mask_stats=True)
+    paths, networks = [], []
+    for seed, hidden in ((0, 16), (1, 16), (2, 8)):
+        torch.manual_seed(seed)
+        networks.append(QNetwork(7, hidden, 7))
+        paths.append(str(tmp_path / f"seed{seed}.pt"))
+        save_q_network(paths[-1], networks[-1], dqn.Args(env=trained, seed=seed, hidden_units=hidden))
+    out = str(tmp_path / "ensemble.pt")
+    deployed = ship_dqn.ship(ship_dqn.Args(checkpoint=paths[0], members=(paths[1],), out=out))
+    ensemble, config = load_q_network(out)  # loads as any checkpoint does, weights_only
+    state = torch.randn(5, 7)
+    torch.testing.assert_close(ensemble(state), (networks[0](state) + networks[1](state)) / 2)
+    assert (ensemble.ensemble, config["member_seeds"], config["member_episodes"]) == (2, [0, 1], 200)
+    assert deployed.box_source == "fcn" and EnvConfig.from_dict(config["trained_env"]) == trained
+    with pytest.raises(ValueError, match=r"seed2.pt' differs from .*seed0.pt' in hidden_units: 8 != 16"):
+        ship_dqn.ship(ship_dqn.Args(checkpoint=paths[0], members=(paths[2],), out=out))
+
+
 def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(baseline_script):
     seeds = baseline_script("seeds")
     args = seeds.Args(preset="hold_demo", set=["demo_episodes=20", "demo_margin=0.8", "double_dqn=false"])
