@@ -22,8 +22,11 @@ train() {  # the runs of make_dqn.sh, one after another
 }
 mkdir -p runs/make_dqn
 train "${SEEDS[@]::(${#SEEDS[@]} + 1) / 2}" &
+FIRST=$!
 train "${SEEDS[@]:(${#SEEDS[@]} + 1) / 2}" &
-wait
+SECOND=$!
+wait "$FIRST"  # each lane's status: one that fails stops the script before it ships (a bare `wait` would not)
+wait "$SECOND"
 MEMBERS=()
 for seed in "${SEEDS[@]:1}"; do MEMBERS+=("$(run "$seed")/q_network.pt"); done
 BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
