@@ -20,8 +20,11 @@ FCN=(--eval-box-source fcn --env.image-size 128 --env.box-hold-steps 20
     --env.fcn-acquire-threshold "${BARS% *}" --env.fcn-track-threshold "${BARS#* }")
 lanes() {
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --seeds 0 2 4 "$@" >/dev/null &
+    local first=$!
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --seeds 1 3 "$@" >/dev/null &
-    wait
+    local second=$!
+    wait "$first"  # each lane's status: a failed lane stops the script (a bare `wait` would not)
+    wait "$second"
     $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --report-only "$@"
 }
 FINE=(--eval-fine-step-size "$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")")
