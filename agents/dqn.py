@@ -80,7 +80,7 @@ from mani_active_vision.agents.policies import (
     margin_limits,
     num_actions,
 )
-from mani_active_vision.agents.q_network import QNetwork, save_q_network
+from mani_active_vision.agents.q_network import QNetwork, ensemble_of, save_q_network
 from mani_active_vision.directions import DIRECTIONS, FINE, action_names_for
 from mani_active_vision.envs import DQN_FINE_STEP_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.protocol import evaluate
@@ -519,15 +519,6 @@ def update(
     return loss.item(), margin.item()
 
 
-def snapshot_ensemble(q_network: QNetwork, snapshots: list[dict]) -> QNetwork:
-    """`Args.snapshots`: one network's saved states as the members of an ensemble that acts on their mean Q."""
-    hidden_units = q_network.member(0)[0].out_features
-    ensemble = QNetwork(q_network.state_dim, hidden_units, q_network.num_actions, len(snapshots))
-    for k, state in enumerate(snapshots):
-        ensemble.member(k).load_state_dict(state)
-    return ensemble
-
-
 def sample(buffer: ReplayBuffer, args: Args, rng) -> dict | list[dict]:
     """A batch, or with `ensemble_batches` one per ensemble member."""
     if args.ensemble_batches:
@@ -780,7 +771,7 @@ def train(args: Args, progress: bool = True) -> dict:
         if selector.best is not None:  # the validated network that succeeded most, not the last one
             q_network.load_state_dict(selector.best)
         if args.snapshots > 1 and len(snapshots) == args.snapshots:  # (after Ctrl-C: the last network alone)
-            q_network = snapshot_ensemble(q_network, snapshots)
+            q_network = ensemble_of(q_network, snapshots)
         if writer is not None:
             writer.close()
         checkpoint = os.path.join(run_dir, "q_network.pt")  # also after Ctrl-C: what was learned so far

@@ -86,6 +86,16 @@ def load_q_network(path: str) -> tuple[QNetwork, dict]:
     return q_network.eval(), config
 
 
+def ensemble_of(template: QNetwork, states: list[dict]) -> QNetwork:
+    """A network of `template`'s shape per state dict (each one network's), side by side as one ensemble that
+    acts on their mean Q: one run's snapshots (`dqn.Args.snapshots`) or several runs (`ensemble_checkpoint`)."""
+    hidden_units = template.member(0)[0].out_features
+    ensemble = QNetwork(template.state_dim, hidden_units, template.num_actions, len(states))
+    for k, state in enumerate(states):
+        ensemble.member(k).load_state_dict(state)
+    return ensemble
+
+
 def ensemble_checkpoint(paths: list[str]) -> dict:
     """One checkpoint whose network is the given DQN checkpoints' networks side by side (`QNetwork(ensemble=K)`,
     acting on the mean of their Q-values), with the first one's config: runs of one preset from other seeds,
@@ -99,9 +109,7 @@ def ensemble_checkpoint(paths: list[str]) -> dict:
         for key in ("state_dim", "num_actions", "hidden_units", "env"):
             if config.get(key) != first.get(key):
                 raise ValueError(f"{path!r} differs from {paths[0]!r} in {key}: {config.get(key)} != {first.get(key)}")
-    ensemble = QNetwork(first["state_dim"], first["hidden_units"], first["num_actions"], len(paths))
-    for k, network in enumerate(networks):
-        ensemble.member(k).load_state_dict(network.member(0).state_dict())
+    ensemble = ensemble_of(networks[0], [network.member(0).state_dict() for network in networks])
     config = {
         **first,
         "members": len(paths),
