@@ -66,6 +66,7 @@ from mani_active_vision.agents.policies import (
     LEFT,
     RIGHT,
     STAY_INDEX,
+    ActionMap,
     ServoPolicy,
     box_array,
     in_success_with_margin,
@@ -77,7 +78,7 @@ from mani_active_vision.agents.policies import (
 )
 from mani_active_vision.agents.q_network import checkpoint_env_config, load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, features, input_dim, save_agent
-from mani_active_vision.directions import DIRECTIONS
+from mani_active_vision.directions import DIRECTIONS, FINE
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.evaluation.rollout import stop_on_ctrl_c
 from mani_active_vision.json_io import save_json
@@ -294,14 +295,24 @@ def gae(rewards, values, ended, next_value, gamma: float, lam: float) -> torch.T
 TRACKED = ("return", "learner_return", "success", "success_final", "focus_held", "steps_to_see")
 
 
+def learner_actions(env) -> ActionMap:
+    """The learner's actions as the env's: the six directions (and `stay`), each direction taken as its fine move
+    while the box is near success where the env has the fine moves (env.fine_step_size), as `MemoryPolicy` acts
+    when deployed; so the learner and its teacher keep seven actions and learn the half steps' dynamics."""
+    env_count = num_actions(env)
+    return ActionMap(env_count - len(FINE) if env_count > len(DIRECTIONS) + 1 else env_count, env_count)
+
+
 class Collector:
     """The vector env and what the learner keeps of it between steps: the latest observation and info, each
     env's previous action and whether its next observation is an episode's first, the learner's reward and
-    the episode's trajectory; a finished episode's metrics go to `history` (with the env step it ended at)."""
+    the episode's trajectory; a finished episode's metrics go to `history` (with the env step it ended at).
+    `step` takes the learner's actions (`learner_actions`) and gives the env theirs."""
 
     def __init__(self, env, args: Args, writer=None):
         self.env, self.args, self.writer, self.n = env, args, writer, env.num_envs
-        self.actions = num_actions(env)
+        self.action_map = learner_actions(env)
+        self.actions = len(self.action_map.to_env)
         self.obs, self.info = env.reset(seed=[args.seed * TRAIN_SEED_STRIDE + i for i in range(self.n)])
         self.learner_rewards = [LearnerReward(args, args.env.success_fraction) for _ in range(self.n)]
         self.trajectories = [Trajectory() for _ in range(self.n)]
@@ -322,7 +333,7 @@ class Collector:
 
     def step(self, action: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """Step every env; returns the learner's rewards (N,) and which episodes ended with this step (N,)."""
-        self.obs, reward, terminated, truncated, self.info = self.env.step(action)
+        self.obs, reward, terminated, truncated, self.info = self.env.step(self.action_map(action, self.obs))
         _, final_info = last_step(self.obs, self.info)  # the finished episodes' last step (same-step reset)
         done = np.asarray(terminated) | np.asarray(truncated)
         self.global_step += self.n
@@ -353,15 +364,17 @@ class ServoTeacher:
 
     def __init__(self, env, stays: bool = False, look_over: bool = False):
         self.servo = ServoPolicy(env, hold=stays, look_over=look_over)
+        self.action_map, self.obs = learner_actions(env), None  # the servo acts in the env's actions
 
     def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
         sweep = self.servo.sweep
         sweep.direction[starts], sweep.steps[starts], sweep.turned[starts] = sweep.first, 0, False
         self.servo.last_action[starts] = -1
-        return self.servo.act(obs, info)
+        self.obs = obs
+        return self.action_map.to_policy[self.servo.act(obs, info)]
 
     def executed(self, action: np.ndarray):
-        self.servo.last_action[:] = action
+        self.servo.last_action[:] = self.action_map(np.asarray(action), self.obs)
 
 
 class ExploreDQNTeacher:
@@ -386,7 +399,7 @@ class ExploreDQNTeacher:
         mask_stats_in_obs: bool = False,
     ):
         self.q_network, config = load_q_network(checkpoint)
-        self.n, self.actions, self.stays = env.unwrapped.num_envs, num_actions(env), stays
+        self.n, self.actions, self.stays = env.unwrapped.num_envs, len(learner_actions(env).to_env), stays
         self.stay_limits = stay_limits
         self.with_last_action = bool(config.get("with_last_action", False))
         self.avoid_refused = bool(config.get("avoid_refused", False))
@@ -585,7 +598,7 @@ def train(args: Args, progress: bool = True) -> dict:
     torch.manual_seed(args.seed)
     n, steps = args.num_envs, args.num_steps
     env = make_vec_env(args.env, n, backend="cpu")  # worker processes
-    actions = num_actions(env)
+    actions = len(learner_actions(env).to_env)
     agent = RecurrentActorCritic(
         input_dim(actions, args.env.with_mask_stats, args.env.with_presence),
         actions,

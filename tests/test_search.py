@@ -293,6 +293,34 @@ def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
     torch.testing.assert_close(trained["critic.0.weight"], untrained.critic[0].weight)  # DAgger fits no value
 
 
+def test_in_an_env_with_the_fine_moves_the_learner_and_its_teachers_keep_seven_actions():
+    fine_env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(13))
+    action_map = search.learner_actions(fine_env)  # six directions, stay, then the six fine moves (7-12)
+    assert len(action_map.to_env) == 7
+    near = np.array([[0.4, 0.4, 0.2, 0.2, 0.5, 0.0, 0.6], [0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.6]], np.float32)
+    assert action_map(np.array([LEFT, LEFT]), near).tolist() == [7 + LEFT, LEFT]  # half a step near the target
+    assert action_map(np.array([STAY_INDEX, UP]), near).tolist() == [STAY_INDEX, UP]
+    servo = search.ServoTeacher(fine_env)
+    servo.act(near, {}, np.array([True, True]))
+    labels = servo.act(near, {}, np.array([False, False]))  # the servo moves fine near the target: its direction
+    assert labels.max() < 7 and servo.servo.act(near, {})[0] >= 7
+    servo.executed(np.array([RIGHT, RIGHT]))
+    assert servo.servo.last_action.tolist() == [7 + RIGHT, RIGHT]  # the step the env took, as the servo reads it
+    teacher = search.ExploreDQNTeacher(fine_env, SHIPPED_DQN, mask_stats_in_obs=True)  # seven actions, as trained
+    assert teacher.actions == 7
+    six = types.SimpleNamespace(unwrapped=fine_env.unwrapped, action_space=gym.spaces.Discrete(12))
+    assert len(search.learner_actions(six).to_env) == 6
+
+
+def test_dagger_in_an_env_with_the_fine_moves_learns_seven_actions(tmp_path):
+    fine = SHORT.replace(fine_step_size=0.025, stay_action=True, with_mask_stats=True)
+    args = search.Args(env=fine, total_steps=24, teacher=SHIPPED_DQN, dagger_batch=2, run_dir=str(tmp_path))
+    result = search.train(args, progress=False)
+    agent, config = load_agent(result["checkpoint"])
+    assert agent.num_actions == 7 and config["env"]["fine_step_size"] == 0.025
+    assert len(result["history"]) == 2  # two 12-step episodes, one per worker
+
+
 def test_the_focal_imitation_loss_weighs_the_steps_the_learner_gets_wrong():
     logits = torch.tensor([[4.0, 0.0, 0.0], [0.0, 4.0, 0.0]])  # sure of action 0, then of action 1
     labels = torch.tensor([0, 0])  # the teacher says 0 twice: right, then wrong
