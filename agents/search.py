@@ -19,9 +19,11 @@ the next step: memory (a sequence model) so that the agent learns to explore. Th
   sequences replayed with the same resets) and in evaluation;
 - the teacher (`teacher`): the scripted exploration handing over to a DQN checkpoint (by default the
   six-direction `agents/weights/dqn_hold_demo_wide.pt`, the agent shipped before `hold_stay`; the shipped
-  `search.pt` learns from `dqn_hold_stay.pt`, which stays by itself, measured in docs/search.md), or the scripted servo; it
-  runs beside the learner and labels the learner's own states (its sweep turns on the learner's refusals,
-  its hand-over latches on the learner's first sighting);
+  `search.pt` learns from `dqn_ensemble.pt`, five DQN runs acting as one, which stays by itself, measured in
+  docs/search.md), or the scripted servo; it runs beside the learner and labels the learner's own states (its
+  sweep turns on the learner's refusals, its hand-over latches on the learner's first sighting);
+- where the env has the fine moves (`env.fine_step_size`) the learner and its teacher keep seven actions, each
+  direction taken as its half step near the target (`learner_actions`), as the agent acts when deployed;
 - `algo=dagger` (Ross et al., 2011): the greedy learner acts on `num_envs` `make_vec_env` worker processes,
   the teacher acting instead on a share of the steps that falls from 1 to 0 over `dagger_beta_steps`; every
   labelled episode is kept and the policy is fit to all of them (cross-entropy). The memory learns what the

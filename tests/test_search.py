@@ -35,7 +35,7 @@ from mani_active_vision.agents.recurrent_network import (
     load_agent,
     save_agent,
 )
-from mani_active_vision.envs import DQN_FCN_THRESHOLDS, FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 
 SHORT = EnvConfig(with_ee_pos=True, max_episode_steps=12)  # short episodes: the same code, less time
@@ -397,11 +397,12 @@ def assert_acts_in_a_short_episode(path: str, deployed: EnvConfig):
 def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     path, config, deployed, trained = shipped_memory_agent("search.pt")
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
-    assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn_hold_stay.pt"
+    assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn_ensemble.pt"
     assert config["dagger_focal_gamma"] == 2.0 and config["actor_sees_input"]  # scripts/make_search.sh's recipe
-    assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True).on_fcn_box(
-        DQN_FCN_THRESHOLDS
-    )  # it learnt on the box it acts on, with the verifier's bars of its teacher, the shipped DQN
+    assert trained == EnvConfig(
+        with_ee_pos=True, stay_action=True, with_mask_stats=True, fine_step_size=DQN_FINE_STEP_SIZE
+    ).on_fcn_box(DQN_FCN_THRESHOLDS)  # it learnt on the box and the moves it acts with, as its teacher is deployed
+    assert load_agent(path)[0].num_actions == 7  # the fine moves are its directions near the target
     assert deployed == trained.replace(object_set="unseen") and deployed.image_size == FCN_IMAGE_SIZE
     assert_acts_in_a_short_episode(path, deployed)
 
