@@ -173,6 +173,12 @@ LOOK_OVER_TURN = 19
 (`ActiveVisionFind.placement_azimuth`) and the camera sees ~35° to either side, so at 6.4° a step the far side
 is reached at ~120°, well before joint 1's limit (170°) would turn it."""
 
+SWEEP_TURN = 14
+"""Orbit steps from the search pose before `ExplorePolicy(first_turn=SWEEP_TURN)` first turns back: the objects lie
+within ±155° of azimuth and the camera sees ~20° of azimuth to either side at their distance, so at 9.5° a step one
+side has been seen by ~134°, three steps before joint 1's limit would turn the orbit. Teaching the memory agent
+(docs/search.md#a-sweep-that-turns-back-at-the-objects-range)."""
+
 
 OVER_ROW = 0.7
 """`ServoPolicy(look_over=True)`: the image row (0 top, 1 bottom) the target is kept above while its box is small,
@@ -310,17 +316,22 @@ class ExplorePolicy:
 
     `handed_over` (N,) bool says which envs the explorer has handed over this episode: a learner uses it
     to tell its own steps from the script's. With `look_over` the orbit starts with LOOK_OVER (scenes with
-    occluders); by default, where a DQN checkpoint was trained after that lead-in (its `look_over`).
+    occluders); by default, where a DQN checkpoint was trained after that lead-in (its `look_over`). With
+    `first_turn` (e.g. SWEEP_TURN) the orbit first turns back after that many steps, not at joint 1's limit.
     """
 
-    def __init__(self, env, then=None, seed: int = 0, look_over: bool | None = None, **then_kwargs):
+    def __init__(
+        self, env, then=None, seed: int = 0, look_over: bool | None = None, first_turn: int = 0, **then_kwargs
+    ):
         self.num_envs = env.unwrapped.num_envs
         if isinstance(then, str) and then != "none":  # a name in POLICIES, else a policy object (or None)
             then = make_policy(then, env, **({"seed": seed} if then in ("random", "dqn") else {}), **then_kwargs)
         self.then = None if then == "none" else then
         if look_over is None:
             look_over = bool(getattr(self.then, "config", {}).get("look_over", False))
-        self.sweep = Sweep.looking_over(self.num_envs) if look_over else Sweep(self.num_envs)
+        if first_turn < 0 or (first_turn and look_over):
+            raise ValueError(f"first_turn={first_turn} must be >= 0, and 0 with look_over (LOOK_OVER_TURN)")
+        self.sweep = Sweep.looking_over(self.num_envs) if look_over else Sweep(self.num_envs, first_turn=first_turn)
         self.handed_over = np.zeros(self.num_envs, dtype=bool)
 
     def reset(self, obs, info):
@@ -470,11 +481,19 @@ POLICIES: dict[str, Callable] = {
 
 
 def policy_kwargs(
-    name: str, then: str = "none", checkpoint: str = "", seed: int = 0, epsilon: float = 0.0, look_over: bool = False
+    name: str,
+    then: str = "none",
+    checkpoint: str = "",
+    seed: int = 0,
+    epsilon: float = 0.0,
+    look_over: bool = False,
+    first_turn: int = 0,
 ) -> dict:
     """The keyword arguments `make_policy` needs for `name` (and, for "explore", the policy it hands over to).
     `look_over` (scenes with occluders): the servo's or the exploration's sweep starts with LOOK_OVER, and the
-    servo approaches from above."""
+    servo approaches from above. `first_turn`: the exploration's orbit first turns back after that many steps."""
+    if first_turn and name != "explore":
+        raise ValueError(f"first_turn is the exploration's (policy 'explore'), not policy {name!r}'s")
     if look_over and (name not in ("servo", "explore") or (name == "explore" and then == "servo")):
         raise ValueError(
             f"look_over is for policy 'servo' (which sweeps itself) or 'explore' handing over to dqn, random or none; "
@@ -494,6 +513,8 @@ def policy_kwargs(
         kwargs["seed"] = seed
     if look_over:
         kwargs["look_over"] = True
+    if first_turn:
+        kwargs["first_turn"] = first_turn
     return kwargs
 
 

@@ -164,6 +164,9 @@ class Args:
     teacher_looks_over: bool = False
     """with teacher=servo: the servo looks over the occluders (the LOOK_OVER lead-in, then it approaches from
     above: `ServoPolicy(look_over=True)`), for scenes with env.occluders (docs/task.md#occluders)"""
+    teacher_first_turn: int = 0
+    """with a DQN teacher: its exploration's orbit first turns back after this many orbit steps
+    (policies.SWEEP_TURN), as `ExplorePolicy(first_turn=...)`; 0: at joint 1's limit"""
     teacher_stays: bool = False
     """the teacher takes `stay` (the env needs stay_action) while the task reports success: privileged (the
     ground truth's success), a teacher that shows holding"""
@@ -225,6 +228,11 @@ def check(args: Args):
                 raise ValueError(f"teacher {args.teacher!r} was trained with {option}: it needs env.{option}")
     if args.teacher_looks_over and args.teacher != "servo":
         raise ValueError(f"teacher_looks_over is the servo's: it needs teacher=servo, not {args.teacher!r}")
+    if args.teacher_first_turn < 0 or (args.teacher_first_turn and args.teacher == "servo"):
+        raise ValueError(
+            f"teacher_first_turn={args.teacher_first_turn} must be >= 0, and is the exploration's: it needs a DQN "
+            "teacher, not servo"
+        )
     if args.teacher_stays and not args.env.stay_action:
         raise ValueError("teacher_stays takes `stay`: it needs env.stay_action")
     if args.teacher_box not in TEACHER_BOXES:
@@ -390,7 +398,9 @@ class ExploreDQNTeacher:
     with `stay` (the shipped `hold_stay` one) stays by itself; with `stays` (the env has `stay`, the DQN may
     not) it also takes `stay` while the task reports success and the target's share is at least
     `stay_limits[0]` and its centre offset at most `stay_limits[1]` (`Args.teacher_stay_margin`); a `stay` is
-    no previous direction for a six-direction DQN."""
+    no previous direction for a six-direction DQN. With `first_turn` its orbit first turns back once the learner
+    has taken that many more steps in its direction than against it (`ExplorePolicy(first_turn=...)` in the
+    learner's states)."""
 
     def __init__(
         self,
@@ -399,8 +409,10 @@ class ExploreDQNTeacher:
         stays: bool = False,
         stay_limits: tuple[float, float] = (0.0, 1.0),
         mask_stats_in_obs: bool = False,
+        first_turn: int = 0,
     ):
         self.q_network, config = load_q_network(checkpoint)
+        self.first_turn = first_turn
         self.n, self.actions, self.stays = env.unwrapped.num_envs, len(learner_actions(env).to_env), stays
         self.stay_limits = stay_limits
         self.with_last_action = bool(config.get("with_last_action", False))
@@ -420,6 +432,8 @@ class ExploreDQNTeacher:
                 f"directions{' and stay' if self.actions > len(DIRECTIONS) else ''})"
             )
         self.direction = np.full(self.n, LEFT)
+        self.orbit_steps = np.zeros(self.n, dtype=np.int64)  # net steps in its direction before its first turn
+        self.turned = np.zeros(self.n, dtype=bool)
         self.handed_over = np.zeros(self.n, dtype=bool)
         self.last_action = np.full(self.n, -1)
         self.executed_action = np.full(self.n, -1)
@@ -427,8 +441,12 @@ class ExploreDQNTeacher:
     def act(self, obs, info, starts: np.ndarray) -> np.ndarray:
         refused = info_flags(info, "refused", self.n) & ~starts
         turn = refused & (self.executed_action == self.direction)
+        if self.first_turn:
+            turn |= (self.orbit_steps >= self.first_turn) & ~self.turned & ~starts
         self.direction[turn] = np.where(self.direction[turn] == LEFT, RIGHT, LEFT)
+        self.turned |= turn
         self.direction[starts], self.handed_over[starts], self.last_action[starts] = LEFT, False, -1
+        self.orbit_steps[starts], self.turned[starts] = 0, False
         box_state = box_array(obs)
         self.handed_over |= box_state[:, 2] > 0
         parts = [box_state[:, :4]] + ([box_state[:, -3:]] if self.mask_stats else [])
@@ -446,6 +464,8 @@ class ExploreDQNTeacher:
     def executed(self, action: np.ndarray):
         """The action the learner took: the DQN's previous action from the hand-over on."""
         self.executed_action = np.asarray(action).copy()
+        away = np.where(self.direction == LEFT, RIGHT, LEFT)
+        self.orbit_steps += (self.executed_action == self.direction).astype(np.int64) - (self.executed_action == away)
         self.last_action = np.where(self.handed_over, self.executed_action, -1)
 
 
@@ -482,7 +502,9 @@ def make_teacher(env, args: Args):
         teacher = ServoTeacher(env, args.teacher_stays, args.teacher_looks_over)
     else:
         limits = margin_limits(args.env.success_fraction, args.env.success_center_tol, args.teacher_stay_margin)
-        teacher = ExploreDQNTeacher(env, args.teacher, args.teacher_stays, limits, args.env.with_mask_stats)
+        teacher = ExploreDQNTeacher(
+            env, args.teacher, args.teacher_stays, limits, args.env.with_mask_stats, args.teacher_first_turn
+        )
     if args.teacher_box == "observed":
         return teacher
     in_success = args.teacher_box == "ground_truth_in_success"

@@ -44,6 +44,9 @@ class Args:
     look_over: bool = False
     """for --policy servo or explore, on scenes with --env.occluders: the sweep first looks over the panels
     (policies.LOOK_OVER) and the servo approaches from above (docs/task.md#occluders)"""
+    first_turn: int = 0
+    """for --policy explore: the orbit first turns back after this many steps (policies.SWEEP_TURN = 14 has seen
+    one side of the objects' range); 0 (default): at joint 1's limit"""
     episodes: int = 20
     """evaluation episodes"""
     seed: int = EVAL_SEED
@@ -56,7 +59,9 @@ class Args:
 
 def main(args: Args) -> dict:
     torch.set_num_threads(1)
-    kwargs = policy_kwargs(args.policy, args.then, args.checkpoint, args.seed, args.epsilon, args.look_over)
+    kwargs = policy_kwargs(
+        args.policy, args.then, args.checkpoint, args.seed, args.epsilon, args.look_over, args.first_turn
+    )
     env = make_env(args.env)
     try:
         policy = make_policy(args.policy, env, **kwargs)

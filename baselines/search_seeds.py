@@ -153,21 +153,31 @@ def evaluate_cached(args: Args, path: str, config: EnvConfig, name: str, box: st
 
 
 def baselines(args: Args, box: str) -> dict[str, dict]:
-    """The baselines' evaluations on this box: explore -> dqn (as shipped), servo, dqn without exploration."""
+    """The baselines' evaluations on this box: explore -> dqn (the teacher, with its sweep; and with the default
+    sweep where the teacher's turns earlier), servo, dqn without exploration."""
     dqn_env = eval_config(checkpoint_env_config(args.dqn_checkpoint), args, box)
     suffix = f"{box}_{args.eval_episodes}.json"
     out = {}
-    for label, name, kwargs in (
-        ("explore → dqn (the teacher)", "explore", dict(then="dqn", checkpoint=args.dqn_checkpoint)),
-        ("servo (scripted)", "servo", {}),
-        ("dqn without exploration (the teacher's)", "dqn", dict(checkpoint=args.dqn_checkpoint)),
-    ):
-        path = os.path.join(args.out_dir, f"baseline_{name}_{suffix}")
+    teacher = dict(then="dqn", checkpoint=args.dqn_checkpoint)
+    runs = [("explore → dqn (the teacher)", "explore", "explore", teacher | sweep_kwargs(args))]
+    if args.train.teacher_first_turn:  # the sweep as it turns by default, for steps to see
+        runs.append(("explore → dqn, turning at joint 1's limit", "explore_at_limit", "explore", teacher))
+    runs += [
+        ("servo (scripted)", "servo", "servo", {}),
+        ("dqn without exploration (the teacher's)", "dqn", "dqn", dict(checkpoint=args.dqn_checkpoint)),
+    ]
+    for label, key, name, kwargs in runs:
+        path = os.path.join(args.out_dir, f"baseline_{key}_{suffix}")
         config = dqn_env if name != "servo" else eval_config(EnvConfig(), args, box)
         if args.report_only and not os.path.exists(path):
             continue
         out[label] = evaluate_cached(args, path, config, name, box, **kwargs)
     return out
+
+
+def sweep_kwargs(args: Args) -> dict:
+    """The teacher's sweep for an `explore` policy: where its orbit first turns back, if not at joint 1's limit."""
+    return {"first_turn": args.train.teacher_first_turn} if args.train.teacher_first_turn else {}
 
 
 def barred(args: Args, box: str) -> bool:
@@ -292,6 +302,11 @@ def camera_paths(config: EnvConfig, name: str, seeds, **kwargs) -> list[dict]:
     return paths
 
 
+def sweep_title(args: Args) -> str:
+    turn = args.train.teacher_first_turn
+    return f"scripted sweep (explore, first turn after {turn} steps)" if turn else "scripted sweep (explore)"
+
+
 def plot_paths(args: Args, path: str):
     """Azimuth vs step of the memory agent (FCN box) and the scripted sweep on the same episodes."""
     checkpoint = os.path.join(seed_dir(args, args.path_seed), "agent.pt")
@@ -303,12 +318,12 @@ def plot_paths(args: Args, path: str):
         os.path.join(args.out_dir, f"paths_seed{args.path_seed}_{args.path_episodes}.json"),
         lambda: {
             "memory": camera_paths(memory_env, "memory", seeds, checkpoint=checkpoint),
-            "explore": camera_paths(eval_config(EnvConfig(), args, "fcn"), "explore", seeds),
+            "explore": camera_paths(eval_config(EnvConfig(), args, "fcn"), "explore", seeds, **sweep_kwargs(args)),
         },
     )
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for ax, (key, title) in zip(
-        axes, (("memory", f"memory agent (seed {args.path_seed}), FCN box"), ("explore", "scripted sweep (explore)"))
+        axes, (("memory", f"memory agent (seed {args.path_seed}), FCN box"), ("explore", sweep_title(args)))
     ):
         for run in runs[key]:
             line = ax.plot(run["azimuth"], label=f"episode {run['seed']}")[0]

@@ -21,7 +21,9 @@ from mani_active_vision.agents.policies import (
     LEFT,
     RIGHT,
     STAY_INDEX,
+    SWEEP_TURN,
     UP,
+    ExplorePolicy,
     MemoryPolicy,
     box_array,
     make_policy,
@@ -192,6 +194,29 @@ def test_the_explore_dqn_teacher_follows_the_learners_trajectory():
     well_inside = {**in_success, "target_fraction": np.array([0.07])}
     assert wary.act(seen, well_inside, going)[0] == STAY_INDEX
     assert wary.act(seen, {**well_inside, "target_center_offset": [0.12]}, going)[0] != STAY_INDEX
+
+
+def test_with_first_turn_the_teachers_sweep_turns_back_after_that_many_net_steps_in_its_direction():
+    stand_in = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(6))
+    teacher = search.ExploreDQNTeacher(stand_in, DQN_WEIGHTS, first_turn=3)
+    unseen, free = np.zeros((1, 7), np.float32), {"refused": np.array([False])}
+    actions = [int(teacher.act(unseen, free, np.array([True]))[0])]
+    for learner in (LEFT, UP, LEFT, RIGHT, LEFT, LEFT, RIGHT, RIGHT, RIGHT, RIGHT):
+        teacher.executed(np.array([learner]))
+        actions.append(int(teacher.act(unseen, free, np.array([False]))[0]))
+    # a step against its direction takes one back; after three net steps left it turns right, and only once
+    assert actions == [LEFT] * 6 + [RIGHT] * 5
+    assert teacher.act(unseen, free, np.array([True]))[0] == LEFT  # a new episode sweeps left again
+    explorer = ExplorePolicy(stand_in, first_turn=2)  # the same rule as the exploration's own sweep
+    explorer.reset(unseen, {})
+    assert [int(explorer.act(unseen, free)[0]) for _ in range(5)] == [LEFT, LEFT, RIGHT, RIGHT, RIGHT]
+    with pytest.raises(ValueError, match="first_turn=14 must be >= 0, and 0 with look_over"):
+        ExplorePolicy(stand_in, first_turn=14, look_over=True)
+    with pytest.raises(ValueError, match="first_turn is the exploration's .policy 'explore'., not policy 'servo'"):
+        policy_kwargs("servo", first_turn=14)
+    assert policy_kwargs("explore", "dqn", "x.pt", first_turn=SWEEP_TURN)["first_turn"] == SWEEP_TURN
+    with pytest.raises(ValueError, match="teacher_first_turn=14 must be >= 0, and is the exploration's"):
+        search.check(dataclasses.replace(search.Args(), teacher="servo", teacher_first_turn=14))
 
 
 SHIPPED_DQN = os.path.join(os.path.dirname(DQN_WEIGHTS), "dqn.pt")
@@ -459,3 +484,24 @@ def test_search_seeds_evaluates_every_agent_on_the_training_scenes_occluders(bas
     for box in ("fcn", "ground_truth"):
         config = search_seeds.eval_config(EnvConfig(), args, box)
         assert config.occluders == 2 and config.object_set == args.eval_object_set and config.box_source == box
+
+
+def test_search_seeds_evaluates_the_teachers_sweep_and_beside_it_the_default_one(baseline_script, monkeypatch):
+    search_seeds = baseline_script("search_seeds")
+    calls = {}
+
+    def record(args, path, config, name, box, **kwargs):
+        calls[os.path.basename(path)] = (name, kwargs)
+        return {}
+
+    monkeypatch.setattr(search_seeds, "evaluate_cached", record)
+    turning = search_seeds.Args(train=dataclasses.replace(search.Args(), teacher_first_turn=SWEEP_TURN))
+    rows = search_seeds.baselines(turning, "ground_truth")
+    assert list(rows)[:2] == ["explore → dqn (the teacher)", "explore → dqn, turning at joint 1's limit"]
+    teacher = {"then": "dqn", "checkpoint": turning.dqn_checkpoint}
+    assert calls["baseline_explore_ground_truth_50.json"] == ("explore", teacher | {"first_turn": SWEEP_TURN})
+    assert calls["baseline_explore_at_limit_ground_truth_50.json"] == ("explore", teacher)
+    assert search_seeds.sweep_title(turning).endswith(f"first turn after {SWEEP_TURN} steps)")
+    calls.clear()
+    assert len(search_seeds.baselines(search_seeds.Args(), "ground_truth")) == 3  # one sweep, the default
+    assert calls["baseline_explore_ground_truth_50.json"] == ("explore", teacher)
