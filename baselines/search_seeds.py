@@ -122,16 +122,20 @@ def eval_config(base: EnvConfig, args: Args, box: str, thresholds: tuple[float, 
 
 
 def references(args: Args, box: str) -> dict[int, float]:
-    """The privileged servo's steps per evaluation seed on this box (cached; NaN where it fails)."""
+    """The privileged servo's steps per evaluation seed on this box as the memory agents see it, with their bars
+    (cached; NaN where it fails, and then an agent's own steps are the shortest known), as `evaluate.py` runs it
+    on the agent's env: the bars decide which sightings the servo gets, and so its steps."""
+    thresholds = args.fcn_thresholds if barred(args, box) else None
 
     def compute():
-        env = make_env(eval_config(EnvConfig(), args, box))
+        env = make_env(eval_config(EnvConfig(), args, box, thresholds))
         try:
             return reference_table(env, eval_seeds(args.eval_episodes))
         finally:
             env.close()
 
-    value = cached(os.path.join(args.out_dir, f"reference_{box}_{args.eval_episodes}.json"), compute)
+    name = f"reference_{box}{bars_suffix(args, box)}_{args.eval_episodes}.json"
+    value = cached(os.path.join(args.out_dir, name), compute)
     return {int(k): math.nan if v is None else v for k, v in value.items()}
 
 
@@ -156,7 +160,7 @@ def baselines(args: Args, box: str) -> dict[str, dict]:
     """The baselines' evaluations on this box: explore -> dqn (the teacher, with its sweep; and with the default
     sweep where the teacher's turns earlier), servo, dqn without exploration."""
     dqn_env = eval_config(checkpoint_env_config(args.dqn_checkpoint), args, box)
-    suffix = f"{box}_{args.eval_episodes}.json"
+    suffix = f"{box}{bars_suffix(args, box)}_{args.eval_episodes}.json"
     out = {}
     teacher = dict(then="dqn", checkpoint=args.dqn_checkpoint)
     runs = [("explore → dqn (the teacher)", "explore", "explore", teacher | sweep_kwargs(args))]
@@ -184,9 +188,13 @@ def barred(args: Args, box: str) -> bool:
     return box == "fcn" and any(args.fcn_thresholds)
 
 
+def bars_suffix(args: Args, box: str) -> str:
+    """Evaluations (and references) with the verifier's bars are kept in their own files."""
+    return "_bars{:g}_{:g}".format(*args.fcn_thresholds) if barred(args, box) else ""
+
+
 def memory_path(args: Args, seed: int, box: str) -> str:
-    bars = "_bars{:g}_{:g}".format(*args.fcn_thresholds) if barred(args, box) else ""
-    return os.path.join(seed_dir(args, seed), f"eval_{box}{bars}_{args.eval_episodes}.json")
+    return os.path.join(seed_dir(args, seed), f"eval_{box}{bars_suffix(args, box)}_{args.eval_episodes}.json")
 
 
 def evaluate_seed(args: Args, seed: int, box: str) -> dict:

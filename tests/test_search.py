@@ -505,3 +505,19 @@ def test_search_seeds_evaluates_the_teachers_sweep_and_beside_it_the_default_one
     calls.clear()
     assert len(search_seeds.baselines(search_seeds.Args(), "ground_truth")) == 3  # one sweep, the default
     assert calls["baseline_explore_ground_truth_50.json"] == ("explore", teacher)
+
+
+def test_search_seeds_runs_the_spl_reference_on_the_agents_box_with_their_bars(baseline_script, monkeypatch, tmp_path):
+    search_seeds = baseline_script("search_seeds")
+    made = []
+    monkeypatch.setattr(
+        search_seeds, "make_env", lambda config: made.append(config) or types.SimpleNamespace(close=int)
+    )
+    monkeypatch.setattr(search_seeds, "reference_table", lambda env, seeds: {int(s): 20.0 for s in seeds})
+    barred = search_seeds.Args(fcn_thresholds=DQN_FCN_THRESHOLDS, out_dir=str(tmp_path), eval_episodes=2)
+    assert search_seeds.references(barred, "fcn") == {1_000_000: 20.0, 1_000_001: 20.0}
+    assert (made[0].fcn_acquire_threshold, made[0].fcn_track_threshold) == DQN_FCN_THRESHOLDS  # as evaluate.py's
+    assert (tmp_path / "reference_fcn_bars0.97_0.9_2.json").exists()  # not the file of a reference without them
+    search_seeds.references(dataclasses.replace(barred, fcn_thresholds=(0.0, 0.0)), "fcn")
+    assert made[1].fcn_acquire_threshold == EnvConfig().fcn_acquire_threshold
+    assert (tmp_path / "reference_fcn_2.json").exists()
