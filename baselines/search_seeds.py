@@ -95,7 +95,8 @@ def seed_dir(args: Args, seed: int) -> str:
 
 def train_seed(args: Args, seed: int):
     """Train one seed, unless its folder holds a finished run with these options (one with others is an
-    error: its evaluations would be taken for this configuration's)."""
+    error: its evaluations would be taken for this configuration's; an option its run predates counts as its
+    default)."""
     history = os.path.join(seed_dir(args, seed), "history.json")
     options = dataclasses.replace(
         args.train, seed=seed, total_steps=args.total_steps, run_dir=args.out_dir, run_name=f"seed{seed}"
@@ -103,7 +104,8 @@ def train_seed(args: Args, seed: int):
     finished = read_json(history) if os.path.exists(history) else {"complete": False}
     if finished["complete"]:
         saved, wanted = finished["config"], json.loads(json.dumps(dataclasses.asdict(options)))
-        differ = sorted(k for k in wanted if saved.get(k) != wanted[k])
+        defaults = json.loads(json.dumps(dataclasses.asdict(search.Args())))  # an option added since ran as its default
+        differ = sorted(k for k in wanted if saved.get(k, defaults.get(k)) != wanted[k])
         if differ:
             raise ValueError(
                 f"{seed_dir(args, seed)} holds a finished run with other options ({', '.join(differ)}): "

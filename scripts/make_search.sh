@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Reproduce the shipped memory agent (agents/weights/search.pt) and its measurements (docs/search.md): train
 # the memory agent (agents/search.py: DAgger from the scripted exploration handing over to the five-run DQN
-# agents/weights/dqn_ensemble.pt (scripts/make_dqn_ensemble.sh), which stays by itself; with `stay` and the mask
+# agents/weights/dqn_ensemble.pt (scripts/make_dqn_ensemble.sh), which stays by itself, the exploration's orbit
+# first turning back after policies.SWEEP_TURN steps, where one side of the objects' range has been seen; with `stay` and the mask
 # stats in its input; with the fine moves near the target as it and its teacher are deployed (envs.DQN_FINE_STEP_SIZE);
 # on the FCN's box as deployed: 128², held through its misses, the verifier's bars envs.DQN_FCN_THRESHOLDS;
 # a focal imitation loss and a policy head that sees the current step's input beside the GRU's;
@@ -9,7 +10,7 @@
 # baselines on 50 held-out episodes (unseen objects, FCN box as deployed and ground-truth box), draw the learning
 # curves and the camera's azimuth, then ship seed 0 (chosen before training, not the best) as deployed (FCN box,
 # unseen objects: baselines/ship_dqn.py) and evaluate it. Finished runs and evaluations are kept under $OUT
-# (runs/search_ens_fine) and skipped on a rerun. About 60 min on 2 cores.
+# (runs/search_turn) and skipped on a rerun. About 60 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -17,13 +18,14 @@ PY=.venv/bin/python
 SEEDS=${SEEDS:-0 1 2 3 4}
 STEPS=${STEPS:-20000}
 SHIP_SEED=${SHIP_SEED:-0}
-OUT=${OUT:-runs/search_ens_fine}
+OUT=${OUT:-runs/search_turn}
 # the FCN's box as the shipped DQN is deployed (EnvConfig.on_fcn_box(DQN_FCN_THRESHOLDS)): size, held steps, bars
-read -r SIZE HOLD ACQUIRE TRACK FINE < <($PY -c "from mani_active_vision import envs
-print(envs.FCN_IMAGE_SIZE, envs.FCN_BOX_HOLD_STEPS, *envs.DQN_FCN_THRESHOLDS, envs.DQN_FINE_STEP_SIZE)")
+read -r SIZE HOLD ACQUIRE TRACK FINE TURN < <($PY -c "from mani_active_vision import envs
+from mani_active_vision.agents import policies
+print(envs.FCN_IMAGE_SIZE, envs.FCN_BOX_HOLD_STEPS, *envs.DQN_FCN_THRESHOLDS, envs.DQN_FINE_STEP_SIZE, policies.SWEEP_TURN)")
 TEACHER=(--train.teacher agents/weights/dqn_ensemble.pt --dqn-checkpoint agents/weights/dqn_ensemble.pt --train.env.stay-action
     --train.env.with-mask-stats --train.env.fine-step-size "$FINE" --train.dagger-updates 32 --train.dagger-focal-gamma 2
-    --train.actor-sees-input)
+    --train.actor-sees-input --train.teacher-first-turn "$TURN")
 ON_FCN_BOX=(--train.env.box-source fcn --train.env.image-size "$SIZE" --train.env.box-hold-steps "$HOLD"
     --train.env.fcn-acquire-threshold "$ACQUIRE" --train.env.fcn-track-threshold "$TRACK" --fcn-thresholds "$ACQUIRE" "$TRACK")
 # shellcheck disable=SC2086

@@ -521,3 +521,17 @@ def test_search_seeds_runs_the_spl_reference_on_the_agents_box_with_their_bars(b
     search_seeds.references(dataclasses.replace(barred, fcn_thresholds=(0.0, 0.0)), "fcn")
     assert made[1].fcn_acquire_threshold == EnvConfig().fcn_acquire_threshold
     assert (tmp_path / "reference_fcn_2.json").exists()
+
+
+def test_search_seeds_takes_a_finished_run_from_before_an_option_as_run_at_its_default(baseline_script, tmp_path):
+    search_seeds = baseline_script("search_seeds")
+    args = search_seeds.Args(out_dir=str(tmp_path), total_steps=20_000)
+    options = dataclasses.replace(args.train, seed=0, total_steps=20_000, run_dir=str(tmp_path), run_name="seed0")
+    config = json.loads(json.dumps(dataclasses.asdict(options)))
+    del config["teacher_first_turn"]  # a run saved before the option existed
+    (tmp_path / "seed0").mkdir()
+    (tmp_path / "seed0" / "history.json").write_text(json.dumps({"complete": True, "config": config}))
+    search_seeds.train_seed(args, 0)  # finished: nothing to train
+    turning = dataclasses.replace(args, train=dataclasses.replace(args.train, teacher_first_turn=SWEEP_TURN))
+    with pytest.raises(ValueError, match="holds a finished run with other options .teacher_first_turn."):
+        search_seeds.train_seed(turning, 0)
