@@ -424,6 +424,7 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
     assert (deployed.box_source, deployed.object_set, deployed.with_ee_pos) == ("fcn", "unseen", True)
     assert deployed.stay_action and deployed.with_mask_stats and config["teacher"] == "agents/weights/dqn_ensemble.pt"
     assert config["dagger_focal_gamma"] == 2.0 and config["actor_sees_input"]  # scripts/make_search.sh's recipe
+    assert config["teacher_first_turn"] == SWEEP_TURN  # its teacher's sweep turns back at the objects' range
     assert trained == EnvConfig(
         with_ee_pos=True, stay_action=True, with_mask_stats=True, fine_step_size=DQN_FINE_STEP_SIZE
     ).on_fcn_box(DQN_FCN_THRESHOLDS)  # it learnt on the box and the moves it acts with, as its teacher is deployed
