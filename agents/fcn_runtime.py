@@ -149,7 +149,7 @@ def scene_mask(
     session = _session(
         model,
         weights,
-        (tuple(scene.shape[1:]), tuple(feature_shapes)),
+        (tuple(scene.shape[1:]), tuple(feature_shapes), model.config.segment_size),
         lambda: export_graph(model, (1, *scene.shape[1:]), [(1, *s) for s in feature_shapes]),
         required,
     )

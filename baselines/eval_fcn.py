@@ -50,6 +50,9 @@ class Args:
     presence_threshold: float | None = None
     """for a model with a presence head: the presence probability under which the mask is emptied (default:
     the checkpoint's)"""
+    segment_size: int = 0
+    """the side the network segments each scene at (`FCNConfig.segment_size`; 0: the checkpoint's training
+    size), e.g. 128 (envs.FCN_SEGMENT_SIZE) as `EnvConfig(fcn_segment_size=128)` deploys it"""
 
 
 SIZE_BINS = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1, 1.01)
@@ -163,8 +166,11 @@ def main(args: Args):
     model, checkpoint = load_checkpoint(weights)
     if args.presence_threshold is not None:
         model.config = dataclasses.replace(model.config, presence_threshold=args.presence_threshold)
+    if args.segment_size:
+        model.config = dataclasses.replace(model.config, segment_size=args.segment_size)
     lines = [
         f"FCN `{weights}` (trained at {model.config.image_size}², epoch {checkpoint.get('epoch')})"
+        + (f", segmenting at {args.segment_size}²" if args.segment_size else "")
         + (", largest connected component kept" if args.largest_component else "")
         + (f", presence threshold {model.config.presence_threshold}" if model.config.presence_head else ""),
         "",

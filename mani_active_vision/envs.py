@@ -38,6 +38,9 @@ DQN_FCN_THRESHOLDS = (0.97, 0.9)
 needs the verifier's 0.97 to become the box, one near the last box keeps it at the FCN's own 0.9, so fewer
 look-alikes are taken for the target (docs/control.md §7; `baselines/ship_dqn.py`, the demo)."""
 
+FCN_SEGMENT_SIZE = 128
+"""`EnvConfig.fcn_segment_size` to segment at the camera's own 128² (docs/vision.md#segmenting-at-the-cameras-resolution)."""
+
 DQN_FINE_STEP_SIZE = 0.025
 """`EnvConfig.fine_step_size` where the shipped DQN learns and is deployed (the `hold_stay_fine` preset): close to
 the target it takes half steps, which land on views in success that the full step passes over (docs/control.md
@@ -79,6 +82,9 @@ class EnvConfig:
     observations)"""
     fcn_weights: str = ""
     """FCN checkpoint for box_source=fcn (empty: the shipped agents/weights/fcn.pt)"""
+    fcn_segment_size: int = 0
+    """box_source=fcn: the side the FCN segments the camera image at (0: the checkpoint's training size, 64²);
+    FCN_SEGMENT_SIZE = 128, the camera's own, keeps small targets' pixels (docs/vision.md)"""
     fcn_acquire_threshold: float = 0.0
     """box_source=fcn: the verifier probability a new region needs to become the box (0: the checkpoint's
     `verifier_threshold`)"""
@@ -121,6 +127,10 @@ class EnvConfig:
             raise ValueError("with_presence appends to the box state: it needs box_source ground_truth or fcn")
         if not (isinstance(self.image_size, int) and self.image_size >= 8):
             raise ValueError(f"image_size={self.image_size!r} must be an integer of at least 8")
+        if not (isinstance(self.fcn_segment_size, int) and (self.fcn_segment_size == 0 or self.fcn_segment_size >= 16)):
+            raise ValueError(
+                f"fcn_segment_size={self.fcn_segment_size!r} must be 0 (the checkpoint's) or an integer of at least 16"
+            )
         for name in ("fcn_acquire_threshold", "fcn_track_threshold"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be in [0, 1) (0: the checkpoint's)")
@@ -185,7 +195,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
     if config.box_source == "none":
         return env
     if config.box_source == "fcn" and segmenter is None:
-        segmenter = load_pretrained(config.fcn_weights or None)
+        segmenter = load_pretrained(config.fcn_weights or None, config.fcn_segment_size)
     return BoxState(
         env,
         source=config.box_source,

@@ -1,6 +1,7 @@
 """The one-shot segmentation FCN, its data, its shipped weights and the box state built on it."""
 
 import copy
+import dataclasses
 import warnings
 
 import numpy as np
@@ -210,6 +211,36 @@ def test_onnxruntime_gives_the_torch_models_masks_on_rendered_frames(image_size)
     batched = model.predict(data["scene"], data["target"], runtime="onnxruntime")
     for fast in (one_at_a_time, batched):
         _assert_masks_agree(fast, plain, margin)
+
+
+def test_segmenting_at_the_cameras_resolution_runs_the_network_on_the_whole_frame():
+    data = _render("unseen", scenes=(900004,), views=4, image_size=128)
+    scene, target = data["scene"], data["target"]
+    sides = []
+
+    def network_input_sides(model):
+        sides.clear()
+        model.encoder[0].register_forward_pre_hook(lambda module, inputs: sides.append(inputs[0].shape[-1]))
+        return model
+
+    native = network_input_sides(load_pretrained(segment_size=128).network_alone())  # network_alone keeps it
+    plain = native.predict(scene, target, runtime="torch")
+    assert sides == [64, 128] and plain.shape == (4, 128, 128)  # the 64² target image first, then the scene
+    margin = _torch_margin(native, scene, target)
+    assert torch.equal(plain, margin > 0) and plain.any((1, 2)).sum() >= 2
+    _assert_masks_agree(native.predict(scene, target, runtime="onnxruntime"), plain, margin)
+    default = network_input_sides(_shipped_network())
+    pooled = default.predict(scene, target, runtime="torch")
+    assert sides == [64, 64] and not torch.equal(pooled, plain)  # the frame average-pooled to the training size
+    native.config = dataclasses.replace(native.config, segment_size=0)  # its ONNX graph is not reused
+    _assert_masks_agree(
+        native.predict(scene, target, runtime="onnxruntime"), pooled, _torch_margin(default, scene, target)
+    )
+    for bad in (8, 64.0):
+        with pytest.raises(ValueError, match=f"segment_size={bad!r} must be 0"):
+            load_pretrained(segment_size=bad)
+        with pytest.raises(ValueError, match=f"fcn_segment_size={bad!r} must be 0"):
+            EnvConfig(box_source="fcn", fcn_segment_size=bad)
 
 
 def test_onnxruntime_graph_is_rebuilt_when_the_weights_change():
