@@ -18,6 +18,7 @@ ran before the verifier went to ONNX Runtime too).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import itertools
 import os
@@ -53,6 +54,9 @@ class Args:
     """keep each mask's largest region, as BoxState does"""
     episode_steps: int = 200
     """env steps per runtime for the in-episode timing (0: skip it)"""
+    segment_sizes: list[int] = field(default_factory=lambda: [0])
+    """the sides the network segments each frame at (`FCNConfig.segment_size`; 0: its training size): every
+    runtime is timed at each"""
 
 
 def time_calls(fn, repeats: int) -> np.ndarray:
@@ -153,7 +157,13 @@ def in_episode_ms(variants: dict[str, tuple], size: int, steps: int, block: int 
 def main(args: Args):
     torch.set_num_threads(1)
     model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
-    variants = runtime_variants(model, args.runtimes, args.verifier_on_torch)
+    variants = {}
+    for segment_size in args.segment_sizes:
+        segmenting = copy.deepcopy(model)
+        segmenting.config = dataclasses.replace(model.config, segment_size=segment_size)
+        suffix = f", segmenting at {segment_size}²" if segment_size else ""
+        for name, variant in runtime_variants(segmenting, args.runtimes, args.verifier_on_torch).items():
+            variants[name + suffix] = variant
     rng = np.random.default_rng(0)
     print(
         f"FCN trained at {model.config.image_size}², {sum(p.numel() for p in model.parameters())} parameters; torch threads: {torch.get_num_threads()}; largest_component: {args.largest_component}"
