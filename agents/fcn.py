@@ -72,7 +72,7 @@ class FCNConfig:
     segment_size: int = 0
     """scene side `predict` segments at (0: `image_size`). The network is fully convolutional: at the camera's
     128² a target a few dozen pixels large keeps them, where 64² leaves it a few (a deployment choice, set by
-    `load_pretrained(segment_size=...)`: on rollout frames IoU 0.70 -> 0.76 on targets of >= 20 px, for ~1.5 ms
+    `load_pretrained(segment_size=...)`: on rollout frames IoU 0.70 -> 0.76 on targets of >= 20 px, for ~2 ms
     more per frame; docs/vision.md#segmenting-at-the-cameras-resolution)"""
     target_size: int = 64
     """target image side (the task's `target_image_size`)"""
@@ -592,10 +592,15 @@ def load_pretrained(path: str | None = None, segment_size: int = 0) -> OneShotFC
     """The shipped, trained FCN (agents/weights/fcn.pt, or `path`), on the CPU in eval mode; with
     `segment_size`, segmenting scenes at that side (`FCNConfig.segment_size`; 0: the checkpoint's)."""
     model, _ = load_checkpoint(path or WEIGHTS_PATH)
-    if segment_size:
-        if not (isinstance(segment_size, int) and segment_size >= 16):
-            raise ValueError(f"segment_size={segment_size!r} must be 0 (the checkpoint's) or an integer of at least 16")
-        model.config = dataclasses.replace(model.config, segment_size=segment_size)
+    return segmenting_at(model, segment_size) if segment_size else model
+
+
+def segmenting_at(model: OneShotFCN, segment_size: int) -> OneShotFCN:
+    """`model`, changed in place to segment scenes at `segment_size` (`FCNConfig.segment_size`; 0: its training
+    size). A bad size is a ValueError naming it."""
+    if not (isinstance(segment_size, int) and (segment_size == 0 or segment_size >= 16)):
+        raise ValueError(f"segment_size={segment_size!r} must be 0 (the training size) or an integer of at least 16")
+    model.config = dataclasses.replace(model.config, segment_size=segment_size)
     return model
 
 

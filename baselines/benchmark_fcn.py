@@ -18,7 +18,6 @@ ran before the verifier went to ONNX Runtime too).
 from __future__ import annotations
 
 import copy
-import dataclasses
 import functools
 import itertools
 import os
@@ -31,7 +30,7 @@ import torch
 import tyro
 
 import mani_active_vision  # noqa: F401  (registers the task)
-from mani_active_vision.agents.fcn import WEIGHTS_PATH, load_checkpoint
+from mani_active_vision.agents.fcn import WEIGHTS_PATH, load_checkpoint, segmenting_at
 from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
 
 
@@ -159,8 +158,7 @@ def main(args: Args):
     model, _ = load_checkpoint(args.weights or WEIGHTS_PATH)
     variants = {}
     for segment_size in args.segment_sizes:
-        segmenting = copy.deepcopy(model)
-        segmenting.config = dataclasses.replace(model.config, segment_size=segment_size)
+        segmenting = segmenting_at(copy.deepcopy(model), segment_size)
         suffix = f", segmenting at {segment_size}²" if segment_size else ""
         for name, variant in runtime_variants(segmenting, args.runtimes, args.verifier_on_torch).items():
             variants[name + suffix] = variant

@@ -27,7 +27,13 @@ import numpy as np
 import torch
 import tyro
 
-from mani_active_vision.agents.fcn import WEIGHTS_PATH, dataset_counts, load_checkpoint, summarize_counts
+from mani_active_vision.agents.fcn import (
+    WEIGHTS_PATH,
+    dataset_counts,
+    load_checkpoint,
+    segmenting_at,
+    summarize_counts,
+)
 from mani_active_vision.evaluation.rollout_frames import SOURCES, attribute_false_positives
 from mani_active_vision.occluders import MIN_VISIBLE_FRACTION
 from mani_active_vision.segmentation_data import load_segmentation_data
@@ -167,7 +173,7 @@ def main(args: Args):
     if args.presence_threshold is not None:
         model.config = dataclasses.replace(model.config, presence_threshold=args.presence_threshold)
     if args.segment_size:
-        model.config = dataclasses.replace(model.config, segment_size=args.segment_size)
+        segmenting_at(model, args.segment_size)
     lines = [
         f"FCN `{weights}` (trained at {model.config.image_size}², epoch {checkpoint.get('epoch')})"
         + (f", segmenting at {args.segment_size}²" if args.segment_size else "")

@@ -1,7 +1,6 @@
 """The one-shot segmentation FCN, its data, its shipped weights and the box state built on it."""
 
 import copy
-import dataclasses
 import warnings
 
 import numpy as np
@@ -22,6 +21,7 @@ from mani_active_vision.agents.fcn import (
     load_pretrained,
     mask_counts,
     save_checkpoint,
+    segmenting_at,
     soft_iou_loss,
     summarize_counts,
 )
@@ -232,13 +232,15 @@ def test_segmenting_at_the_cameras_resolution_runs_the_network_on_the_whole_fram
     default = network_input_sides(_shipped_network())
     pooled = default.predict(scene, target, runtime="torch")
     assert sides == [64, 64] and not torch.equal(pooled, plain)  # the frame average-pooled to the training size
-    native.config = dataclasses.replace(native.config, segment_size=0)  # its ONNX graph is not reused
+    segmenting_at(native, 0)  # its ONNX graph is not reused
     _assert_masks_agree(
         native.predict(scene, target, runtime="onnxruntime"), pooled, _torch_margin(default, scene, target)
     )
     for bad in (8, 64.0):
         with pytest.raises(ValueError, match=f"segment_size={bad!r} must be 0"):
             load_pretrained(segment_size=bad)
+        with pytest.raises(ValueError, match=f"segment_size={bad!r} must be 0"):
+            segmenting_at(default, bad)
         with pytest.raises(ValueError, match=f"fcn_segment_size={bad!r} must be 0"):
             EnvConfig(box_source="fcn", fcn_segment_size=bad)
 
