@@ -46,6 +46,10 @@ class Args:
     fine_step_size: float | None = None
     """the deployed env's fine moves (0: none; None: those it was trained with; scripts/make_dqn.sh ships the DQN
     with envs.DQN_FINE_STEP_SIZE: it takes half steps near the target, trained with them or on the full step)"""
+    fcn_segment_size: int | None = None
+    """the side the deployed FCN segments the camera's frame at (`EnvConfig.fcn_segment_size`; 0: the network's
+    training size; None: the trained env's; scripts/make_dqn.sh ships the DQN with envs.FCN_SEGMENT_SIZE, the
+    camera's own 128², docs/control.md §17)"""
 
 
 def ship(args: Args) -> EnvConfig:
@@ -64,6 +68,8 @@ def ship(args: Args) -> EnvConfig:
     )
     if args.fine_step_size is not None:
         env = env.replace(fine_step_size=args.fine_step_size)
+    if args.fcn_segment_size is not None:
+        env = env.replace(fcn_segment_size=args.fcn_segment_size)
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     torch.save(saved, args.out)

@@ -52,7 +52,9 @@ def test_action_counts_of_discrete_spaces_and_a_clear_error_for_others():
         action_count(gym.spaces.Box(-1, 1, (3,)))
 
 
-def test_shipping_keeps_the_fine_moves_a_dqn_was_trained_with_unless_told(baseline_script, tmp_path):
+def test_shipping_keeps_the_fine_moves_and_the_segmenting_size_a_dqn_was_trained_with_unless_told(
+    baseline_script, tmp_path
+):
     ship_dqn = baseline_script("ship_dqn")
     trained = EnvConfig(stay_action=True, fine_step_size=0.025)
     checkpoint = str(tmp_path / "q.pt")
@@ -60,6 +62,9 @@ def test_shipping_keeps_the_fine_moves_a_dqn_was_trained_with_unless_told(baseli
     kept = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "kept.pt")))
     full = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "full.pt"), fine_step_size=0.0))
     assert kept.fine_step_size == 0.025 and full.fine_step_size == 0.0 and kept.box_source == "fcn"
+    sharp = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "sharp.pt"), fcn_segment_size=128))
+    assert kept.fcn_segment_size == 0 and sharp == kept.replace(fcn_segment_size=128)
+    assert torch.load(tmp_path / "sharp.pt", weights_only=True)["config"]["env"]["fcn_segment_size"] == 128
 
 
 def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
