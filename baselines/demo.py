@@ -9,8 +9,9 @@ deployed; docs/control.md §7, §9, §12) on the
 ground-truth box (privileged training: learning on the FCN's box, whose false positives jump between
 look-alike objects, failed), then evaluates the greedy agent (exploration, then the DQN) on fixed
 evaluation seeds (unseen objects) acting on the box from the shipped FCN at 128² (`envs.FCN_IMAGE_SIZE`), held
-through its misses (`envs.FCN_BOX_HOLD_STEPS`), with half steps near the target (`envs.DQN_FINE_STEP_SIZE`) — as
-deployed — and on the ground-truth box,
+through its misses (`envs.FCN_BOX_HOLD_STEPS`), segmenting the camera's frame at its own 128²
+(`envs.FCN_SEGMENT_SIZE`), with half steps near the target (`envs.DQN_FINE_STEP_SIZE`) — as deployed — and on the
+ground-truth box,
 records the first FCN episodes to a Rerun file, prints the tables and where everything was written. It then
 evaluates the shipped agent (`agents/weights/dqn.pt`, scripts/make_dqn.sh) as deployed, on the FCN's box and
 unseen objects, on the same episode seeds.
@@ -27,7 +28,7 @@ import torch
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.agents.q_network import checkpoint_env_config
-from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, EnvConfig, make_env
+from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, FCN_SEGMENT_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
@@ -70,13 +71,13 @@ class Args:
 def eval_env(args: Args, box_source: str) -> EnvConfig:
     """The evaluation env on `box_source`, as the shipped DQN is deployed: the training env with the evaluation
     objects and the fine moves near the target (`envs.DQN_FINE_STEP_SIZE`), and on the FCN's box the box held
-    through the FCN's misses and its verifier bars."""
+    through the FCN's misses, its verifier bars, and the network segmenting the camera's own 128²."""
     config = args.env.replace(
         box_source=box_source, object_set=args.eval_object_set, fine_step_size=args.eval_fine_step_size
     )
     if box_source != "fcn":
         return config
-    return config.on_fcn_box(DQN_FCN_THRESHOLDS)
+    return config.on_fcn_box(DQN_FCN_THRESHOLDS).replace(fcn_segment_size=FCN_SEGMENT_SIZE)
 
 
 def main(args: Args):

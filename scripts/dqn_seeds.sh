@@ -16,8 +16,9 @@ PY=.venv/bin/python
 PRESET=${PRESET:-hold_stay_fine}
 OUT=${OUT:-runs/seeds/$PRESET}
 BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
+SEGMENT=$($PY -c "from mani_active_vision.envs import FCN_SEGMENT_SIZE as s; print(s)")  # the camera's own 128²
 FCN=(--eval-box-source fcn --env.image-size 128 --env.box-hold-steps 20
-    --env.fcn-acquire-threshold "${BARS% *}" --env.fcn-track-threshold "${BARS#* }")
+    --env.fcn-acquire-threshold "${BARS% *}" --env.fcn-track-threshold "${BARS#* }" --env.fcn-segment-size "$SEGMENT")
 lanes() {
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --seeds 0 2 4 "$@" >/dev/null &
     local first=$!

@@ -31,7 +31,9 @@ MEMBERS=()
 for seed in "${SEEDS[@]:1}"; do MEMBERS+=("$(run "$seed")/q_network.pt"); done
 BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
 FINE=$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")
+SEGMENT=$($PY -c "from mani_active_vision.envs import FCN_SEGMENT_SIZE as s; print(s)")  # the camera's own 128²
 $PY baselines/ship_dqn.py --checkpoint "$(run "${SEEDS[0]}")/q_network.pt" --members "${MEMBERS[@]}" --out "$OUT" \
-    --fcn-acquire-threshold "${BARS% *}" --fcn-track-threshold "${BARS#* }" --fine-step-size "$FINE"
+    --fcn-acquire-threshold "${BARS% *}" --fcn-track-threshold "${BARS#* }" --fine-step-size "$FINE" \
+    --fcn-segment-size "$SEGMENT"
 $PY baselines/evaluate.py --policy explore --then dqn --checkpoint "$OUT" --episodes 50 \
     --json "outputs/$(basename "$OUT" .pt)_shipped.json"

@@ -41,6 +41,7 @@ from mani_active_vision.envs import (
     DQN_FINE_STEP_SIZE,
     FCN_BOX_HOLD_STEPS,
     FCN_IMAGE_SIZE,
+    FCN_SEGMENT_SIZE,
     EnvConfig,
 )
 from mani_active_vision.evaluation.cli import cli_with_preset_env
@@ -480,6 +481,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         box_hold_steps=FCN_BOX_HOLD_STEPS,
         fcn_acquire_threshold=acquire,
         fcn_track_threshold=track,
+        fcn_segment_size=FCN_SEGMENT_SIZE,  # the network segments the camera's own 128² (docs/control.md §17)
     )
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused
     # action, its learning rate was decayed, and it learnt with the half steps near the target it takes deployed
