@@ -6,7 +6,8 @@ rates taken side by side. Subjects:
 - the reference: the paper's setup rebuilt in PyBullet (`pybullet_reference.py`), at 128² and 256²;
 - our task, one env (`make_env`: new objects every episode, like the reference), 128² and 256²
   rgb+segmentation, and with `state` observations (the reward still renders the segmentation);
-- the agent loop: the env with the FCN's box (`box_source="fcn"`) and a Q-network choosing the actions;
+- the agent loop: the env with the FCN's box (`box_source="fcn"`) and a Q-network choosing the actions, with the
+  network segmenting at its 64² and at the camera's 128² (`envs.FCN_SEGMENT_SIZE`, as the shipped DQN is deployed);
 - 1, 2 and 4 worker processes (`make_vec_env`, 128²) with their share of the cores and pinned to them
   (`mani_active_vision.threads`); 2 not pinned (`pin_workers=False`); and 1 and 2 as before issue 14: lavapipe's
   default of a render thread per core (`LP_NUM_THREADS` = cores), not pinned.
@@ -36,7 +37,7 @@ import tyro
 
 import mani_active_vision as mav
 from mani_active_vision.agents.q_network import QNetwork
-from mani_active_vision.envs import ENV_ID, EnvConfig, make_env
+from mani_active_vision.envs import ENV_ID, FCN_SEGMENT_SIZE, EnvConfig, make_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.threads import available_cores
 from mani_active_vision.vec_env import make_vec_env
@@ -144,6 +145,10 @@ def subjects(args: Args) -> dict:
     )
     table["agent loop: 1 env, 128² + FCN box + Q-network"] = (
         lambda: Single(make_env(ours(128, box_source="fcn")), policy=QNetwork(4)),
+        "PyBullet reference, 128²",
+    )
+    table["agent loop, the FCN segmenting at 128² (as the shipped DQN is deployed)"] = (
+        lambda: Single(make_env(ours(128, box_source="fcn", fcn_segment_size=FCN_SEGMENT_SIZE)), policy=QNetwork(4)),
         "PyBullet reference, 128²",
     )
     for n in args.workers:
