@@ -8,7 +8,8 @@ worst seed, beside the scripted servo on the same episodes.
 `--set` changes options of the preset (an option tried, not yet a preset), `--name` names its runs.
 Runs are kept under `out_dir/name/seed<k>` and skipped when finished, so one seed at a time can be run
 (`--seeds 3`) and the table made from all finished ones (`--report-only`); a finished training is only
-evaluated, so `--eval-box-source fcn` evaluates the same agents on the FCN's box (eval_fcn.json beside eval.json). The reference's steps (for SPL)
+evaluated, so `--eval-box-source fcn` evaluates the same agents on the FCN's box (eval_fcn.json beside eval.json);
+an evaluation taken in another env (other `--env.*` flags) is an error, not reused. The reference's steps (for SPL)
 and the servo's evaluation are measured once per evaluation env and episode count, and cached.
 """
 
@@ -157,6 +158,27 @@ def eval_path(args: Args, seed_dir: str) -> str:
     return os.path.join(seed_dir, f"eval{eval_suffix(args)}.json")
 
 
+def saved_evaluation(args: Args, path: str) -> dict | None:
+    """A seed's finished evaluation at `path`, None if there is none. One taken in another env (e.g. the FCN
+    segmenting at another size) is a ValueError naming what differs, not reused; one saved before an option
+    existed counts as taken at its default."""
+    if not os.path.exists(path):
+        return None
+    saved = read_json(path)
+    if "eval_env" not in saved:  # written before evaluations kept their env: nothing to check it against
+        return saved
+    taken, wanted = (
+        dataclasses.asdict(EnvConfig.from_dict(saved["eval_env"])),
+        dataclasses.asdict(eval_env_config(args)),
+    )
+    differ = [f"{key}: {taken[key]!r} != {wanted[key]!r}" for key in wanted if taken[key] != wanted[key]]
+    if differ:
+        raise ValueError(
+            f"{path} holds an evaluation in another env ({', '.join(differ)}): choose another --out-dir or remove it"
+        )
+    return saved
+
+
 def servo_path(args: Args) -> str:
     return os.path.join(args.out_dir, f"servo_{args.eval_object_set}_{args.eval_box_source}{fine(args)}.json")
 
@@ -165,7 +187,7 @@ def run_seed(args: Args, seed: int):
     """Train the seed unless its training finished, then evaluate it unless already evaluated on this box."""
     run_dir = os.path.join(args.out_dir, label(args))
     path = eval_path(args, os.path.join(run_dir, f"seed{seed}"))
-    if os.path.exists(path):
+    if saved_evaluation(args, path) is not None:
         return
     history = os.path.join(run_dir, f"seed{seed}", "history.json")
     if os.path.exists(history) and read_json(history)["complete"]:
@@ -196,10 +218,11 @@ def report(args: Args) -> str:
     )
     for seed_dir in sorted(os.listdir(run_dir)) if os.path.isdir(run_dir) else []:
         path = os.path.join(run_dir, seed_dir)
-        if not os.path.exists(eval_path(args, path)):
+        saved = saved_evaluation(args, eval_path(args, path))
+        if saved is None:
             continue
         history = read_json(os.path.join(path, "history.json"))
-        summary = read_json(eval_path(args, path))["summary"]
+        summary = saved["summary"]
         summaries.append(summary)
         last10 = np.mean([h["success"] for h in history["history"][-10:]])
         rows.append(f"| {label(args)} {seed_dir} | {history['seconds']:.0f} | {last10:.2f} | " + cells(summary) + " |")

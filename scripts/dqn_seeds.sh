@@ -3,12 +3,14 @@
 # §12; PRESET=hold_stay_decay for §9's and §11's): train it on seeds 0-4 (100 episodes each, ground-truth box, train
 # objects) and evaluate each on 50 held-out episodes (unseen objects) as the shipped DQN is deployed, with the fine
 # moves near the target (envs.DQN_FINE_STEP_SIZE): on the ground-truth box (64²), then on the FCN's box (128², the
-# box held 20 steps through the FCN's misses, the verifier's bars envs.DQN_FCN_THRESHOLDS), the scripted servo beside
-# them. FULL_STEP=1 first evaluates both without the fine moves too (the full step only: §9's figures).
+# box held 20 steps through the FCN's misses, the verifier's bars envs.DQN_FCN_THRESHOLDS, the network segmenting the
+# camera's 128², envs.FCN_SEGMENT_SIZE: §17), the scripted servo beside them. FULL_STEP=1 first evaluates both
+# without the fine moves too (the full step only: §9's figures).
 # Two lanes of baselines/seeds.py, one per core with one render thread each (each lane evaluates the servo once
 # per box: neither has cached it until it finishes). Finished runs and evaluations under $OUT are skipped on a
-# rerun; the tables are $OUT/${PRESET}_fine_table.md and $OUT/${PRESET}_fcn_fine_table.md (without _fine for
-# FULL_STEP's). About 13 min on 2 cores (about 25 with FULL_STEP=1).
+# rerun; an evaluation taken with other flags (e.g. before the FCN segmented at 128²) stops it: remove that
+# eval_fcn*.json or set OUT. The tables are $OUT/${PRESET}_fine_table.md and $OUT/${PRESET}_fcn_fine_table.md
+# (without _fine for FULL_STEP's). About 13 min on 2 cores (about 25 with FULL_STEP=1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh

@@ -47,6 +47,7 @@ from mani_active_vision.envs import (
 from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import evaluate
 from mani_active_vision.evaluation.report import markdown_table
+from mani_active_vision.json_io import save_json
 from mani_active_vision.metrics import Trajectory, episode_metrics, summarize
 
 
@@ -560,6 +561,27 @@ def test_seeds_set_changes_options_of_the_preset_and_names_a_wrong_one(baseline_
     assert seeds.eval_env_config(full).fine_step_size == 0 and seeds.eval_suffix(full) == ""
     decay = cli_with_preset_env(seeds.Args, ["--preset", "hold_stay_decay", "--eval-fine-step-size", "0.025"])
     assert seeds.eval_env_config(decay).fine_step_size == 0.025 and decay.env.fine_step_size == 0  # training: full step
+
+
+def test_seeds_does_not_reuse_an_evaluation_taken_in_another_env(baseline_script, tmp_path):
+    seeds = baseline_script("seeds")
+    flags = ["--preset", "hold_stay_fine", "--out-dir", str(tmp_path), "--seeds", "0", "--eval-box-source", "fcn"]
+    args = cli_with_preset_env(seeds.Args, [*flags, "--env.fcn-segment-size", "128"])
+    seed_dir = tmp_path / "hold_stay_fine" / "seed0"
+    seed_dir.mkdir(parents=True)
+    (seed_dir / "history.json").write_text(json.dumps({"complete": True, "seconds": 1.0, "history": [{"success": 1}]}))
+    summary = {key: 0.5 for key in seeds.COLUMNS}
+    taken = dataclasses.replace(args, env=args.env.replace(fcn_segment_size=0))  # dqn_seeds.sh's flags before §17
+    save_json(
+        {"eval_env": dataclasses.asdict(seeds.eval_env_config(taken)), "summary": summary},
+        seeds.eval_path(args, str(seed_dir)),
+    )
+    with pytest.raises(ValueError, match=r"another env \(fcn_segment_size: 0 != 128\): choose another --out-dir"):
+        seeds.run_seed(args, 0)  # neither trained again nor evaluated: the run is finished
+    with pytest.raises(ValueError, match="fcn_segment_size: 0 != 128"):
+        seeds.report(args)
+    assert "| hold_stay_fine seed0 | 1 |" in seeds.report(taken)  # in the env it was taken in, it is the table's
+    seeds.run_seed(taken, 0)  # and is not taken again
 
 
 def test_focus_curve_gives_the_share_in_success_per_step_and_plots_it(baseline_script, monkeypatch, tmp_path):
