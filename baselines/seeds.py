@@ -167,10 +167,8 @@ def saved_evaluation(args: Args, path: str) -> dict | None:
     saved = read_json(path)
     if "eval_env" not in saved:  # written before evaluations kept their env: nothing to check it against
         return saved
-    taken, wanted = (
-        dataclasses.asdict(EnvConfig.from_dict(saved["eval_env"])),
-        dataclasses.asdict(eval_env_config(args)),
-    )
+    taken = dataclasses.asdict(EnvConfig.from_dict(saved["eval_env"]))
+    wanted = dataclasses.asdict(eval_env_config(args))
     differ = [f"{key}: {taken[key]!r} != {wanted[key]!r}" for key in wanted if taken[key] != wanted[key]]
     if differ:
         raise ValueError(
