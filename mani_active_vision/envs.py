@@ -192,7 +192,8 @@ class EnvConfig:
 
 def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
     """`DiscreteDirections`, then `BoxState` as `config` says, around a made task (also inside vector-env
-    workers). `segmenter`: the FCN for box_source=fcn (default: loaded from `config.fcn_weights`)."""
+    workers). `segmenter`: the FCN for box_source=fcn, used as it is (default: loaded from `config.fcn_weights`,
+    segmenting at `config.fcn_segment_size`)."""
     env = DiscreteDirections(env, stay_action=config.stay_action, fine_step=config.fine_step_size)
     if config.box_source == "none":
         return env
