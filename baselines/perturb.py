@@ -5,6 +5,7 @@ memory agent) against the scripted servo.
 
     python baselines/perturb.py --checkpoint runs/fig5/random_explore/seed0/q_network.pt --episodes 10
     python baselines/perturb.py --policy memory --checkpoint agents/weights/search.pt --episodes 50 --push-steps 6
+    python baselines/perturb.py --checkpoint runs/seeds/hold_stay_fine/seed1/q_network.pt --episodes 50 --no-servo
 
 With a checkpoint the env is the one it was trained in (each `--env.*` flag given overrides that option);
 its step limit is raised to fit focus, push and recovery.
@@ -48,6 +49,9 @@ class Args:
     """forced steps per push: small and large (5 cm each)"""
     recover_limit: int = 50
     """steps the agent gets to focus again"""
+    servo: bool = True
+    """also push the scripted servo on the same scenes (--no-servo: the checkpoint only, e.g. when measuring
+    several networks of one preset, whose servo rows would all be the same)"""
     json: str = "outputs/perturb.json"
     """where the results go"""
 
@@ -58,10 +62,12 @@ LEARNED = ("explore", "memory")
 def main(args: Args):
     if args.policy not in LEARNED:
         raise ValueError(f"policy={args.policy!r} is not one of: {', '.join(LEARNED)}")
+    if not (args.servo or args.checkpoint):
+        raise ValueError("--no-servo needs a --checkpoint: there would be no policy to push")
     torch.set_num_threads(1)
     config = args.env.replace(max_episode_steps=FOCUS_LIMIT + max(args.push_steps) + args.recover_limit)
     env = make_env(config)
-    policies = {"servo": make_policy("servo", env)}
+    policies = {"servo": make_policy("servo", env)} if args.servo else {}
     if args.checkpoint and args.policy == "memory":
         policies["memory"] = make_policy("memory", env, checkpoint=args.checkpoint)
     elif args.checkpoint:

@@ -457,6 +457,11 @@ def test_the_memory_agent_is_pushed_and_asked_to_recover(tmp_path, baseline_scri
     trial = results["memory/push2"]["trials"][0]
     assert set(trial) == {"focused", "visible_after_push", "recovered", "steps_to_recover"}
     assert trial["recovered"] <= trial["focused"]  # recovery is asked only of a focused agent
+    perturb.main(dataclasses.replace(args, servo=False))
+    results = json.loads((tmp_path / "perturb.json").read_text())["results"]
+    assert set(results) == {"memory/push2"} and results["memory/push2"]["trials"] == [trial]  # the same trial
+    with pytest.raises(ValueError, match="--no-servo needs a --checkpoint"):
+        perturb.main(perturb.Args(env=env, servo=False))
 
 
 def test_teacher_agreement_asks_the_teacher_on_the_agents_own_steps(tmp_path, baseline_script):
