@@ -348,20 +348,23 @@ def mirrored_actions(count: int) -> np.ndarray:
     return table
 
 
-def mirror_state(state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False) -> np.ndarray:
+def mirror_state(
+    state: np.ndarray, mask_stats: bool = False, ee_pos: bool = False, presence: bool = False
+) -> np.ndarray:
     """The state of the left-right mirrored situation: the box (x, y, w, h) of the mirrored image (zeros,
     the unseen state, stay zeros); with `ee_pos` the camera's commanded position unchanged (the camera looks
     outward from the base's vertical axis, so the mirror through that axis and the camera leaves it in place);
-    with `mask_stats` the mask's share and centroid offset (share, -dx, dy); and, if present, the last action's
-    one-hot (as long as the action set: 6, 7, 12 or 13) with left and right swapped."""
+    with `presence` the presence score unchanged; with `mask_stats` the mask's share and centroid offset
+    (share, -dx, dy); and, if present, the last action's one-hot (as long as the action set: 6, 7, 12 or 13) with
+    left and right swapped. The layout is `BoxState`'s: box, [position], [presence], [mask stats], [last action]."""
     x, y, w, h = state[:4]
     box = np.array([1.0 - x - w if w > 0 else 0.0, y, w, h], np.float32)
-    position = state[4:7] if ee_pos else state[4:4]
-    start = 4 + len(position)
+    unchanged = state[4 : 4 + 3 * ee_pos + presence]  # the camera's position and the presence score
+    start = 4 + len(unchanged)
     stats = state[start : start + 3] * np.array([1.0, -1.0, 1.0], np.float32) if mask_stats else state[4:4]
     rest = state[start + len(stats) :]  # the last action's one-hot, if any
     last_action = rest[mirrored_actions(len(rest))] if len(rest) else rest
-    return np.concatenate([box, position, stats, last_action]).astype(np.float32)
+    return np.concatenate([box, unchanged, stats, last_action]).astype(np.float32)
 
 
 SHAPINGS = ("none", "fraction", "log_fraction", "log_fraction_centred")
@@ -569,10 +572,6 @@ def train(args: Args, progress: bool = True) -> dict:
             f"hold_reward={args.hold_reward} pays for time in success, but end_at_success ends a training "
             "episode at its first success: turn end_at_success off (--no-end-at-success)"
         )
-    if args.mirror_augment and args.env.with_presence:
-        raise ValueError(
-            "mirror_augment reads the mask stats right after the box: it cannot be combined with env.with_presence"
-        )
     if not 0 <= args.box_dropout < 1:
         raise ValueError(f"box_dropout={args.box_dropout} must be a probability in [0, 1)")
     if not 0 <= args.push_probability <= 1 or args.push_steps < 1:
@@ -631,6 +630,7 @@ def train(args: Args, progress: bool = True) -> dict:
     actions = env_actions - len(FINE) if args.fine_as_deployed else env_actions  # the network's
     to_network = ActionMap(actions, env_actions).to_policy  # the env's action taken -> the network's, to store
     mirror_action = mirrored_actions(actions)
+    mirrored_layout = (args.env.with_mask_stats, args.env.with_ee_pos, args.env.with_presence)  # mirror_state's
     state_dim = box_array(env.observation_space.sample()).shape[-1] + (actions if args.with_last_action else 0)
 
     q_network = QNetwork(state_dim, args.hidden_units, actions, args.ensemble)
@@ -715,10 +715,10 @@ def train(args: Args, progress: bool = True) -> dict:
                             buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
                             if args.mirror_augment:
                                 mirrored = (
-                                    mirror_state(s0, args.env.with_mask_stats, args.env.with_ee_pos),
+                                    mirror_state(s0, *mirrored_layout),
                                     mirror_action[a0],
                                     discounted,
-                                    mirror_state(s_n, args.env.with_mask_stats, args.env.with_ee_pos),
+                                    mirror_state(s_n, *mirrored_layout),
                                 )
                                 buffer.add(*mirrored, final, steps, mixed.demo[i])
                         learner_steps[i] += 1

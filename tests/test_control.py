@@ -636,8 +636,10 @@ def test_a_short_shaped_training_run_stores_mirrored_transitions(tmp_path):
     assert learner_steps > 0 and result["transitions"] == 2 * learner_steps
     config = torch.load(result["checkpoint"], weights_only=True)["config"]
     assert {k: config[k] for k in dqn.SHAPED} == dqn.SHAPED and config["state_dim"] == 4 + 6  # box + last direction
-    with pytest.raises(ValueError, match="cannot be combined with env.with_presence"):
-        dqn.train(dataclasses.replace(args, env=args.env.replace(with_presence=True)), progress=False)
+    with_presence = dqn.train(dataclasses.replace(args, env=args.env.replace(with_presence=True)), progress=False)
+    config = torch.load(with_presence["checkpoint"], weights_only=True)["config"]
+    assert config["state_dim"] == 4 + 1 + 6  # box, presence, last direction; mirrored with the score in place
+    assert with_presence["transitions"] == 2 * sum(h["learner_steps"] for h in with_presence["history"])
 
 
 def test_ending_cycle_finds_the_period_of_the_last_actions(baseline_script):

@@ -88,6 +88,11 @@ def test_a_short_training_run_with_stay_stores_seven_actions(tmp_path):
         dqn.mirror_state(with_position, mask_stats=True, ee_pos=True),
         [0.6, 0.2, 0.3, 0.4, 0.5, -0.3, 0.4, 0.06, 0.2, 0.05, 0, 1, 0, 0, 0, 0, 0],
     )
+    with_presence = np.concatenate([with_position[:7], [0.9], with_position[7:]])  # BoxState's: then the stats
+    np.testing.assert_allclose(
+        dqn.mirror_state(with_presence, mask_stats=True, ee_pos=True, presence=True),
+        [0.6, 0.2, 0.3, 0.4, 0.5, -0.3, 0.4, 0.9, 0.06, 0.2, 0.05, 0, 1, 0, 0, 0, 0, 0],
+    )
 
 
 def test_the_planners_steps_are_the_envs_steps_and_reverse_exactly():

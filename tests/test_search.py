@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from conftest import ROOT
 
 import mani_active_vision as mav
-from mani_active_vision.agents import dqn, search
+from mani_active_vision.agents import search
 from mani_active_vision.agents.policies import (
     DOWN,
     FORWARD,
@@ -476,12 +476,6 @@ def test_teacher_agreement_asks_the_teacher_on_the_agents_own_steps(tmp_path, ba
     save_agent(str(ppo), RecurrentActorCritic(input_dim(7, with_mask_stats=True), 7, 8), search.Args(algo="ppo"))
     with pytest.raises(ValueError, match="algo='ppo': it has no teacher to ask"):
         agreement.main(agreement.Args(env=env, checkpoint=str(ppo), episodes=1))
-
-
-def test_the_dqns_mirror_augmentation_refuses_the_presence_score():
-    args = dqn.Args(mirror_augment=True, env=EnvConfig(with_presence=True))
-    with pytest.raises(ValueError, match="cannot be combined with env.with_presence"):
-        dqn.train(args, progress=False)
 
 
 def test_search_seeds_evaluates_every_agent_on_the_training_scenes_occluders(baseline_script):
