@@ -28,26 +28,45 @@ import torch
 
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import STATE_DIMS, features, load_agent
-from mani_active_vision.directions import DIRECTIONS, FINE, STAY, action_count, action_names, action_names_for
+from mani_active_vision.directions import (
+    DIRECTIONS,
+    FINE,
+    FINE_NEAR_CENTRE,
+    STAY,
+    action_count,
+    action_names,
+    action_names_for,
+)
 
 LEFT, RIGHT, FORWARD, BACKWARD, UP, DOWN = (
     DIRECTIONS.index(d) for d in ("left", "right", "forward", "backward", "up", "down")
 )
 STAY_INDEX = action_names(stay_action=True).index(STAY)
 NEAR_AREA = (0.02, 0.25)
-NEAR_CENTRE = 0.3
 """Where the env has the fine moves (env.fine_step_size), the servo and the DQN take them near success: the
-target's box covers NEAR_AREA of the image (success needs its own pixels to cover 5%) with its centre within
-NEAR_CENTRE of the image's centre (success: 0.15). There a full step passes over the few views in success;
-elsewhere (far, off-centre, pushed too close) half steps only cost time (docs/control.md §11)."""
+target's box covers NEAR_AREA of the image (success needs its own pixels to cover 5%) with its centre within the
+env's `fine_near_centre` of the image's centre (default `directions.FINE_NEAR_CENTRE`, 0.3; success: 0.15). There
+a full step passes over the few views in success; elsewhere (far, off-centre, pushed too close) half steps only
+cost time (docs/control.md §11, §18)."""
 
 
-def near_target(box: np.ndarray) -> np.ndarray:
-    """(N,) bool: the boxes (N, 4+) that are near success (`NEAR_AREA`, `NEAR_CENTRE`), where the fine moves are taken."""
+def near_target(box: np.ndarray, centre: float = FINE_NEAR_CENTRE) -> np.ndarray:
+    """(N,) bool: the boxes (N, 4+) that are near success (`NEAR_AREA`, the centre within `centre` of the image's),
+    where the fine moves are taken."""
     x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
     area = w * h
-    centred = (np.abs(x + w / 2 - 0.5) <= NEAR_CENTRE) & (np.abs(y + h / 2 - 0.5) <= NEAR_CENTRE)
+    centred = (np.abs(x + w / 2 - 0.5) <= centre) & (np.abs(y + h / 2 - 0.5) <= centre)
     return (area >= NEAR_AREA[0]) & (area <= NEAR_AREA[1]) & centred
+
+
+def fine_near_centre(env) -> float:
+    """The env's `fine_near_centre` (`DiscreteDirections`'; a vector env's first worker's), where its policies
+    take the fine moves; the default for an env without them, where it is never used."""
+    if num_actions(env) <= len(DIRECTIONS) + 1:
+        return FINE_NEAR_CENTRE
+    if hasattr(env, "get_wrapper_attr"):
+        return float(env.get_wrapper_attr("fine_near_centre"))
+    return float(env.get_attr("fine_near_centre")[0])
 
 
 def box_array(obs) -> np.ndarray:
@@ -125,7 +144,8 @@ class ActionMap:
     success (`near_target`). `to_env` and `to_env_full` are the two tables (`env_actions`); `to_policy` maps each
     env action back to the policy's (a fine move to its direction), for a learner that stores its own actions."""
 
-    def __init__(self, policy_actions: int, env_actions_count: int):
+    def __init__(self, policy_actions: int, env_actions_count: int, near_centre: float = FINE_NEAR_CENTRE):
+        self.near_centre = near_centre
         self.to_env = env_actions(policy_actions, env_actions_count)
         self.to_env_full = env_actions(policy_actions, env_actions_count, fine=False)
         self.fine = not np.array_equal(self.to_env, self.to_env_full)
@@ -135,7 +155,7 @@ class ActionMap:
     def __call__(self, action: np.ndarray, obs) -> np.ndarray:
         if not self.fine:  # no fine moves in the env: nothing to decide per step
             return self.to_env_full[action]
-        return np.where(near_target(box_array(obs)), self.to_env[action], self.to_env_full[action])
+        return np.where(near_target(box_array(obs), self.near_centre), self.to_env[action], self.to_env_full[action])
 
 
 def rule_out_refused(q: torch.Tensor, refused: np.ndarray, last_action: np.ndarray) -> torch.Tensor:
@@ -263,6 +283,7 @@ class ServoPolicy:
         self.num_envs = env.unwrapped.num_envs
         names = action_names_for(num_actions(env))
         self.fine_offset = names.index(FINE[0]) if fine and FINE[0] in names else 0  # FINE is in DIRECTIONS' order
+        self.near_centre = fine_near_centre(env)
         self.center_tol = center_tol
         lead_in = look_over if lead_in is None else lead_in
         first = DIRECTIONS.index(first_sweep)
@@ -304,7 +325,7 @@ class ServoPolicy:
         action[~served] = sweep[~served]
         self.last_action[:] = action
         if self.fine_offset:
-            action[served & near_target(box)] += self.fine_offset
+            action[served & near_target(box, self.near_centre)] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
@@ -388,7 +409,7 @@ class DQNPolicy:
         self.avoid_refused = bool(self.config.get("avoid_refused", avoid_refused))
         self.last_action = np.full(self.num_envs, -1)
         self.num_actions = self.q_network.num_actions
-        self.action_map = ActionMap(self.num_actions, num_actions(env))
+        self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -436,7 +457,7 @@ class MemoryPolicy:
         self.agent, self.config = (agent, {}) if agent is not None else load_agent(checkpoint)
         self.num_envs = env.unwrapped.num_envs
         self.num_actions = self.agent.num_actions
-        self.action_map = ActionMap(self.num_actions, num_actions(env))
+        self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
         box_dim = box_array(env.observation_space.sample()).shape[-1]
         if box_dim not in STATE_DIMS:
             raise ValueError(

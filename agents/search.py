@@ -71,6 +71,7 @@ from mani_active_vision.agents.policies import (
     ActionMap,
     ServoPolicy,
     box_array,
+    fine_near_centre,
     in_success_with_margin,
     info_flags,
     margin_limits,
@@ -310,7 +311,8 @@ def learner_actions(env) -> ActionMap:
     while the box is near success where the env has the fine moves (env.fine_step_size), as `MemoryPolicy` acts
     when deployed; so the learner and its teacher keep seven actions and learn the half steps' dynamics."""
     env_count = num_actions(env)
-    return ActionMap(env_count - len(FINE) if env_count > len(DIRECTIONS) + 1 else env_count, env_count)
+    policy_count = env_count - len(FINE) if env_count > len(DIRECTIONS) + 1 else env_count
+    return ActionMap(policy_count, env_count, fine_near_centre(env))
 
 
 class Collector:

@@ -50,6 +50,9 @@ class Args:
     """the side the deployed FCN segments the camera's frame at (`EnvConfig.fcn_segment_size`; 0: the network's
     training size; None: the trained env's; scripts/make_dqn.sh ships the DQN with envs.FCN_SEGMENT_SIZE, the
     camera's own 128², docs/control.md §17)"""
+    fine_near_centre: float | None = None
+    """how far from the image centre the deployed policy takes the fine moves (`EnvConfig.fine_near_centre`;
+    None: the trained env's; scripts/make_dqn.sh ships the DQN with envs.DQN_FINE_NEAR_CENTRE, docs/control.md §18)"""
 
 
 def ship(args: Args) -> EnvConfig:
@@ -70,6 +73,8 @@ def ship(args: Args) -> EnvConfig:
         env = env.replace(fine_step_size=args.fine_step_size)
     if args.fcn_segment_size is not None:
         env = env.replace(fcn_segment_size=args.fcn_segment_size)
+    if args.fine_near_centre is not None:
+        env = env.replace(fine_near_centre=args.fine_near_centre)
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     torch.save(saved, args.out)

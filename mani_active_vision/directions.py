@@ -24,6 +24,13 @@ policy that takes over from the exploration can land on a view in success that t
 (docs/control.md §11)."""
 
 
+FINE_NEAR_CENTRE = 0.3
+"""How far (a fraction of the image's side, in x and in y) the target's box centre may lie from the image centre
+for a policy to take the fine moves there (`DiscreteDirections.fine_near_centre`; success needs 0.15). The
+default is the one every agent learned with; the shipped DQNs are deployed at `envs.DQN_FINE_NEAR_CENTRE`
+(docs/control.md §11, §18)."""
+
+
 def action_names(stay_action: bool = False, fine_actions: bool = False) -> tuple[str, ...]:
     """The actions' names in index order: the six directions, then `stay` if enabled, then the six fine moves
     if enabled (so the six, and `stay`, keep their indices either way)."""
@@ -98,9 +105,17 @@ class DiscreteDirections(gym.ActionWrapper):
 
     Each direction is turned into the Cartesian step from the controller's current target, so that orbit
     steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
+    `fine_near_centre` is where policies take the fine moves (`agents.policies.near_target`): it is kept here,
+    with the moves, so that a policy reads it from the env it acts in (`agents.policies.fine_near_centre`).
     """
 
-    def __init__(self, env: gym.Env, stay_action: bool = False, fine_step: float = 0.0):
+    def __init__(
+        self,
+        env: gym.Env,
+        stay_action: bool = False,
+        fine_step: float = 0.0,
+        fine_near_centre: float = FINE_NEAR_CENTRE,
+    ):
         super().__init__(env)
         base = env.unwrapped
         if base.control_mode != "pd_ee_delta_pos":
@@ -109,7 +124,11 @@ class DiscreteDirections(gym.ActionWrapper):
         self._batched = len(env.action_space.shape) == 2
         if not 0 <= fine_step < base.step_size:
             raise ValueError(f"fine_step={fine_step!r} must be in [0, step_size={base.step_size}) (0: no fine moves)")
-        self.fine_step = fine_step
+        if not 0 < fine_near_centre <= 0.5:
+            raise ValueError(
+                f"fine_near_centre={fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
+            )
+        self.fine_step, self.fine_near_centre = fine_step, fine_near_centre
         self.names = action_names(stay_action, fine_step > 0)
         n = len(self.names)
         self.action_space = gym.spaces.MultiDiscrete([n] * self.num_envs) if self._batched else gym.spaces.Discrete(n)

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mani_active_vision.tasks.active_vision_find  # noqa: F401  (registers ActiveVisionFind-v0)
 from mani_active_vision.agents.fcn import load_pretrained
 from mani_active_vision.box_state import BOX_SOURCES, BoxState
-from mani_active_vision.directions import DiscreteDirections
+from mani_active_vision.directions import FINE_NEAR_CENTRE, DiscreteDirections
 
 ENV_ID = "ActiveVisionFind-v0"
 BOX_SOURCE_CHOICES = (*BOX_SOURCES, "none")
@@ -47,6 +47,12 @@ DQN_FINE_STEP_SIZE = 0.025
 """`EnvConfig.fine_step_size` where the shipped DQN learns and is deployed (the `hold_stay_fine` preset): close to
 the target it takes half steps, which land on views in success that the full step passes over (docs/control.md
 §11, §12; `baselines/ship_dqn.py`, the demo)."""
+
+DQN_FINE_NEAR_CENTRE = 0.2
+"""`EnvConfig.fine_near_centre` where the shipped DQNs are deployed: the fine moves only while the box's centre is
+within 0.2 of the image centre (0.3 in training). A push leaves the target off centre, and at half steps the way
+back does not fit in 20 steps; with the full step there, recovery after a 6-step push rises from 0.86 to 0.92 for
+the shipped preset's five networks (docs/control.md §18)."""
 
 
 @dataclass(frozen=True)
@@ -117,6 +123,10 @@ class EnvConfig:
     """the six directions again at this shorter step, as actions after them (and after stay), for the policy
     that takes over from the exploration: a view in success is often one or two of the full step's lattice
     (0: off, the paper's; docs/control.md §11)"""
+    fine_near_centre: float = FINE_NEAR_CENTRE
+    """with fine_step_size, how far the target's box centre may lie from the image centre (in x and in y, a
+    fraction of the side) for the policies to take the fine moves (`agents.policies.near_target`); the shipped
+    DQNs are deployed at DQN_FINE_NEAR_CENTRE (docs/control.md §18)"""
 
     def __post_init__(self):
         if self.box_source not in BOX_SOURCE_CHOICES:
@@ -141,6 +151,10 @@ class EnvConfig:
         if not 0 <= self.fine_step_size < self.step_size:
             raise ValueError(
                 f"fine_step_size={self.fine_step_size!r} must be in [0, step_size={self.step_size}) (0: no fine moves)"
+            )
+        if not 0 < self.fine_near_centre <= 0.5:
+            raise ValueError(
+                f"fine_near_centre={self.fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
             )
         if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps={self.max_episode_steps!r} must be a positive integer")
@@ -194,7 +208,9 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
     """`DiscreteDirections`, then `BoxState` as `config` says, around a made task (also inside vector-env
     workers). `segmenter`: the FCN for box_source=fcn, used as it is (default: loaded from `config.fcn_weights`,
     segmenting at `config.fcn_segment_size`)."""
-    env = DiscreteDirections(env, stay_action=config.stay_action, fine_step=config.fine_step_size)
+    env = DiscreteDirections(
+        env, stay_action=config.stay_action, fine_step=config.fine_step_size, fine_near_centre=config.fine_near_centre
+    )
     if config.box_source == "none":
         return env
     if config.box_source == "fcn" and segmenter is None:

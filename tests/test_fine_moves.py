@@ -11,7 +11,14 @@ from conftest import cached_task
 
 import mani_active_vision as mav
 from mani_active_vision.agents import dqn
-from mani_active_vision.agents.policies import ActionMap, MemoryPolicy, ServoPolicy, env_actions, make_policy
+from mani_active_vision.agents.policies import (
+    ActionMap,
+    MemoryPolicy,
+    ServoPolicy,
+    env_actions,
+    fine_near_centre,
+    make_policy,
+)
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, input_dim
 from mani_active_vision.box_state import BoxState
@@ -20,6 +27,7 @@ from mani_active_vision.envs import EnvConfig
 from mani_active_vision.recording.log import action_name
 
 FORWARD = mav.DIRECTIONS.index("forward")
+DOWN = mav.DIRECTIONS.index("down")
 
 
 def test_the_fine_moves_follow_the_six_and_stay_and_are_shorter():
@@ -52,7 +60,7 @@ def test_action_counts_of_discrete_spaces_and_a_clear_error_for_others():
         action_count(gym.spaces.Box(-1, 1, (3,)))
 
 
-def test_shipping_keeps_the_fine_moves_and_the_segmenting_size_a_dqn_was_trained_with_unless_told(
+def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_was_trained_with_unless_told(
     baseline_script, tmp_path
 ):
     ship_dqn = baseline_script("ship_dqn")
@@ -65,11 +73,13 @@ def test_shipping_keeps_the_fine_moves_and_the_segmenting_size_a_dqn_was_trained
     sharp = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "sharp.pt"), fcn_segment_size=128))
     assert kept.fcn_segment_size == 0 and sharp == kept.replace(fcn_segment_size=128)
     assert torch.load(tmp_path / "sharp.pt", weights_only=True)["config"]["env"]["fcn_segment_size"] == 128
+    zone = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "zone.pt"), fine_near_centre=0.2))
+    assert kept.fine_near_centre == 0.3 and zone == kept.replace(fine_near_centre=0.2)
 
 
 def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
     env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search"), fine_step=0.025))
-    fine_forward = action_names_for(12).index("forward_fine")
+    fine_forward, fine_down = (action_names_for(12).index(f"{d}_fine") for d in ("forward", "down"))
 
     def act(servo, box):
         return int(servo.act(torch.tensor([box]), {"refused": torch.tensor([False])})[0])
@@ -82,6 +92,31 @@ def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
         assert act(servo, [0.1, 0.1, 0.8, 0.8]) == FORWARD  # too close (64% of the image): the full step
         assert act(servo, [0.0, 0.4, 0.2, 0.2]) == mav.DIRECTIONS.index("left")  # off-centre by 0.4: the full step
         assert act(servo, [0, 0, 0, 0]) == mav.DIRECTIONS.index("left")  # unseen: the sweep's full step
+        assert act(servo, [0.4, 0.65, 0.2, 0.2]) == (fine_down if fine else DOWN)  # 0.25 below the centre: near
+
+
+def test_the_policies_take_the_fine_moves_within_the_envs_fine_near_centre():
+    """The zone of the fine moves is the env's (`EnvConfig.fine_near_centre`): a box 0.25 below the centre is near
+    success at the default 0.3, not at the deployed DQNs' 0.2, for the servo and for a DQN alike."""
+    low = torch.tensor([[0.4, 0.65, 0.2, 0.2]])
+    names = action_names_for(13)
+    for centre, expected in ((0.3, names.index("down_fine")), (0.2, DOWN)):
+        env = BoxState(
+            mav.DiscreteDirections(cached_task(start_pose="search"), True, fine_step=0.025, fine_near_centre=centre)
+        )
+        assert fine_near_centre(env) == centre
+        servo = ServoPolicy(env)
+        servo.reset(None, {})
+        assert int(servo.act(low, {"refused": torch.tensor([False])})[0]) == expected
+        q_network = dqn.QNetwork(4 + 7, num_actions=7)
+        with torch.no_grad():
+            q_network.network[2].weight.zero_()
+            q_network.network[2].bias[:] = torch.tensor([0.0, 0, 0, 0, 0, 1, 0])  # prefers down
+        policy = make_policy("dqn", env, q_network=q_network, with_last_action=True)
+        policy.reset(low, {})
+        assert int(policy.act(low, {})[0]) == expected
+    with pytest.raises(ValueError, match=r"fine_near_centre=0.0 must be in \(0, 0.5\]"):
+        EnvConfig(fine_near_centre=0.0)
 
 
 def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):

@@ -37,6 +37,7 @@ from mani_active_vision.agents.recurrent_network import (
     load_agent,
     save_agent,
 )
+from mani_active_vision.directions import FINE_NEAR_CENTRE
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 
@@ -319,7 +320,10 @@ def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
 
 
 def test_in_an_env_with_the_fine_moves_the_learner_and_its_teachers_keep_seven_actions():
-    fine_env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(13))
+    zone = {"fine_near_centre": FINE_NEAR_CENTRE}.__getitem__  # DiscreteDirections' attribute, as policies read it
+    fine_env = types.SimpleNamespace(
+        unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(13), get_wrapper_attr=zone
+    )
     action_map = search.learner_actions(fine_env)  # six directions, stay, then the six fine moves (7-12)
     assert len(action_map.to_env) == 7
     near = np.array([[0.4, 0.4, 0.2, 0.2, 0.5, 0.0, 0.6], [0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.6]], np.float32)
@@ -333,7 +337,9 @@ def test_in_an_env_with_the_fine_moves_the_learner_and_its_teachers_keep_seven_a
     assert servo.servo.last_action.tolist() == [7 + RIGHT, RIGHT]  # the step the env took, as the servo reads it
     teacher = search.ExploreDQNTeacher(fine_env, SHIPPED_DQN, mask_stats_in_obs=True)  # seven actions, as trained
     assert teacher.actions == 7
-    six = types.SimpleNamespace(unwrapped=fine_env.unwrapped, action_space=gym.spaces.Discrete(12))
+    six = types.SimpleNamespace(
+        unwrapped=fine_env.unwrapped, action_space=gym.spaces.Discrete(12), get_wrapper_attr=zone
+    )
     assert len(search.learner_actions(six).to_env) == 6
 
 
