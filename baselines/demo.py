@@ -10,8 +10,8 @@ ground-truth box (privileged training: learning on the FCN's box, whose false po
 look-alike objects, failed), then evaluates the greedy agent (exploration, then the DQN) on fixed
 evaluation seeds (unseen objects) acting on the box from the shipped FCN at 128² (`envs.FCN_IMAGE_SIZE`), held
 through its misses (`envs.FCN_BOX_HOLD_STEPS`), segmenting the camera's frame at its own 128²
-(`envs.FCN_SEGMENT_SIZE`), with half steps near the target (`envs.DQN_FINE_STEP_SIZE`) — as deployed — and on the
-ground-truth box,
+(`envs.FCN_SEGMENT_SIZE`), with half steps close to the target (`envs.DQN_FINE_STEP_SIZE`,
+`envs.DQN_FINE_NEAR_CENTRE`) — as deployed, `EnvConfig.as_dqn_deployed` — and on the ground-truth box,
 records the first FCN episodes to a Rerun file, prints the tables and where everything was written. It then
 evaluates the shipped agent (`agents/weights/dqn.pt`, scripts/make_dqn.sh) as deployed, on the FCN's box and
 unseen objects, on the same episode seeds.
@@ -28,7 +28,7 @@ import torch
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import make_policy
 from mani_active_vision.agents.q_network import checkpoint_env_config
-from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, FCN_SEGMENT_SIZE, EnvConfig, make_env
+from mani_active_vision.envs import DQN_FINE_STEP_SIZE, EnvConfig, make_env
 from mani_active_vision.evaluation.cli import cli_with_preset_env
 from mani_active_vision.evaluation.protocol import eval_seeds, evaluate
 from mani_active_vision.evaluation.report import markdown_table, plot_curves
@@ -70,14 +70,13 @@ class Args:
 
 def eval_env(args: Args, box_source: str) -> EnvConfig:
     """The evaluation env on `box_source`, as the shipped DQN is deployed: the training env with the evaluation
-    objects and the fine moves near the target (`envs.DQN_FINE_STEP_SIZE`), and on the FCN's box the box held
-    through the FCN's misses, its verifier bars, and the network segmenting the camera's own 128²."""
-    config = args.env.replace(
-        box_source=box_source, object_set=args.eval_object_set, fine_step_size=args.eval_fine_step_size
-    )
-    if box_source != "fcn":
-        return config
-    return config.on_fcn_box(DQN_FCN_THRESHOLDS).replace(fcn_segment_size=FCN_SEGMENT_SIZE)
+    objects and the fine moves near the target (`eval_fine_step_size`), and on the FCN's box
+    `EnvConfig.as_dqn_deployed`: the box held through the FCN's misses, its verifier bars, the network segmenting
+    the camera's own 128², the fine moves only close to the image centre."""
+    config = args.env.replace(box_source=box_source, object_set=args.eval_object_set)
+    if box_source == "fcn":
+        config = config.as_dqn_deployed()
+    return config.replace(fine_step_size=args.eval_fine_step_size)
 
 
 def main(args: Args):

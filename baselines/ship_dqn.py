@@ -2,9 +2,9 @@
 the FCN's box on unseen objects at 128², held through the FCN's misses (and, if asked, the fine moves near the
 target), with the env it was trained in kept as config["trained_env"].
 
-    python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt
+    python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt --as-dqn
 
-scripts/make_dqn.sh makes the shipped agent this way; `baselines/evaluate.py --policy explore --then dqn
+scripts/make_dqn.sh makes the shipped agent this way (`--as-dqn`: `EnvConfig.as_dqn_deployed`); `baselines/evaluate.py --policy explore --then dqn
 --checkpoint agents/weights/dqn.pt` then evaluates it as deployed. Any `{"state_dict", "config": {"env"}}`
 checkpoint ships the same way: scripts/make_search.sh ships the memory agent (agents/search.py) with it. With
 `--members`, several DQN runs ship as one agent acting on their mean Q (scripts/make_dqn_ensemble.sh).
@@ -33,26 +33,31 @@ class Args:
     scripts/make_dqn_ensemble.sh)"""
     out: str = "agents/weights/dqn.pt"
     """where the shipped checkpoint goes"""
+    as_dqn: bool = False
+    """deploy it as the shipped DQNs are (`EnvConfig.as_dqn_deployed`: the verifier's bars, the FCN's segmenting
+    size, the fine moves and their zone of envs' DQN constants; scripts/make_dqn.sh); the options below, where
+    given, still override"""
     object_set: str = "unseen"
     """the deployed objects: never seen in training"""
     box_hold_steps: int = FCN_BOX_HOLD_STEPS
     """how many steps the deployed box keeps the last box seen while the FCN sees nothing
     (default: `EnvConfig.on_fcn_box`'s, envs.FCN_BOX_HOLD_STEPS)"""
     fcn_acquire_threshold: float = 0.0
-    """the verifier probability a new region of the deployed box needs (0: the FCN checkpoint's own bar;
-    scripts/make_dqn.sh ships the DQN with envs.DQN_FCN_THRESHOLDS)"""
+    """the verifier probability a new region of the deployed box needs (0: the FCN checkpoint's own bar, or with
+    --as-dqn envs.DQN_FCN_THRESHOLDS')"""
     fcn_track_threshold: float = 0.0
-    """the verifier probability a region near the last box needs to stay the box (0: the FCN checkpoint's)"""
+    """the verifier probability a region near the last box needs to stay the box (0: the FCN checkpoint's, or with
+    --as-dqn the DQNs')"""
     fine_step_size: float | None = None
     """the deployed env's fine moves (0: none; None: those it was trained with; scripts/make_dqn.sh ships the DQN
-    with envs.DQN_FINE_STEP_SIZE: it takes half steps near the target, trained with them or on the full step)"""
+    with --as-dqn, envs.DQN_FINE_STEP_SIZE: it takes half steps near the target, trained with them or on the full step)"""
     fcn_segment_size: int | None = None
     """the side the deployed FCN segments the camera's frame at (`EnvConfig.fcn_segment_size`; 0: the network's
-    training size; None: the trained env's; scripts/make_dqn.sh ships the DQN with envs.FCN_SEGMENT_SIZE, the
-    camera's own 128², docs/control.md §17)"""
+    training size; None: the trained env's, or with --as-dqn envs.FCN_SEGMENT_SIZE, the camera's own 128²,
+    docs/control.md §17)"""
     fine_near_centre: float | None = None
     """how far from the image centre the deployed policy takes the fine moves (`EnvConfig.fine_near_centre`;
-    None: the trained env's; scripts/make_dqn.sh ships the DQN with envs.DQN_FINE_NEAR_CENTRE, docs/control.md §18)"""
+    None: the trained env's, or with --as-dqn envs.DQN_FINE_NEAR_CENTRE, docs/control.md §18)"""
 
 
 def ship(args: Args) -> EnvConfig:
@@ -64,11 +69,13 @@ def ship(args: Args) -> EnvConfig:
         saved = torch.load(args.checkpoint, map_location="cpu", weights_only=True)
     config = saved["config"]
     trained = config.get("trained_env", config["env"])
-    env = (
-        EnvConfig.from_dict(trained)
-        .on_fcn_box((args.fcn_acquire_threshold, args.fcn_track_threshold))
-        .replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
-    )
+    bars = {"fcn_acquire_threshold": args.fcn_acquire_threshold, "fcn_track_threshold": args.fcn_track_threshold}
+    env = EnvConfig.from_dict(trained)
+    if args.as_dqn:  # each bar given overrides the DQNs'
+        env = env.as_dqn_deployed().replace(**{name: bar for name, bar in bars.items() if bar})
+    else:
+        env = env.on_fcn_box(tuple(bars.values()))
+    env = env.replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
     if args.fine_step_size is not None:
         env = env.replace(fine_step_size=args.fine_step_size)
     if args.fcn_segment_size is not None:

@@ -198,6 +198,14 @@ class EnvConfig:
         acquire, track = thresholds
         return config.replace(fcn_acquire_threshold=acquire, fcn_track_threshold=track)
 
+    def as_dqn_deployed(self) -> EnvConfig:
+        """This config as the shipped DQNs are deployed: on the FCN's box (`on_fcn_box`) with the verifier's bars
+        `DQN_FCN_THRESHOLDS`, the network segmenting at `FCN_SEGMENT_SIZE`, and the fine moves
+        (`DQN_FINE_STEP_SIZE`) within `DQN_FINE_NEAR_CENTRE` of the image centre (docs/control.md §12, §17, §18)."""
+        return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
+            fcn_segment_size=FCN_SEGMENT_SIZE, fine_step_size=DQN_FINE_STEP_SIZE, fine_near_centre=DQN_FINE_NEAR_CENTRE
+        )
+
     @classmethod
     def from_dict(cls, options: dict) -> EnvConfig:
         """The config a checkpoint stored (`dataclasses.asdict`); unknown keys are an error."""

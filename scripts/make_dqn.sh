@@ -2,10 +2,10 @@
 # Reproduce the shipped DQN (agents/weights/dqn.pt): train the chosen preset and seed (default hold_stay_fine, seed
 # 0, chosen before training; 100 training episodes, ground-truth box, train objects; one process,
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
-# baselines/ship_dqn.py, with the verifier bars of envs.DQN_FCN_THRESHOLDS: 0.97 to acquire a region, 0.9 to
-# keep it; the fine moves of envs.DQN_FINE_STEP_SIZE, half steps near the target; and the FCN segmenting the
-# camera's frame at its own 128², envs.FCN_SEGMENT_SIZE), then evaluate it as deployed on 50 held-out episodes
-# (docs/control.md §9, §11, §12, §17).
+# baselines/ship_dqn.py --as-dqn, EnvConfig.as_dqn_deployed: the verifier bars of envs.DQN_FCN_THRESHOLDS, 0.97 to
+# acquire a region, 0.9 to keep it; the fine moves of envs.DQN_FINE_STEP_SIZE, half steps near the target, within
+# envs.DQN_FINE_NEAR_CENTRE of the image centre; and the FCN segmenting the camera's frame at its own 128²,
+# envs.FCN_SEGMENT_SIZE), then evaluate it as deployed on 50 held-out episodes (docs/control.md §9, §11-§12, §17-§18).
 # The hold_stay_decay agent shipped before it (trained on the full step, the same fine moves when it acts; no longer
 # shipped) is remade by   PRESET=hold_stay_decay SEED=0 OUT=<a file> bash scripts/make_dqn.sh
 # The hold_stay agent shipped before it (the shipped memory agent's teacher; docs/search.md) is remade by
@@ -22,10 +22,7 @@ SEED=${SEED:-0}
 OUT=${OUT:-agents/weights/dqn.pt}
 RUN=runs/make_dqn/${PRESET}_seed${SEED}
 $PY -m mani_active_vision.agents.dqn "$PRESET" --seed "$SEED" --run-dir runs/make_dqn --run-name "${PRESET}_seed${SEED}" "$@"
-BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
-FINE=$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")
-SEGMENT=$($PY -c "from mani_active_vision.envs import FCN_SEGMENT_SIZE as s; print(s)")  # the camera's own 128²
-SHIP_ARGS=${SHIP_ARGS-"--fcn-acquire-threshold ${BARS% *} --fcn-track-threshold ${BARS#* } --fine-step-size $FINE --fcn-segment-size $SEGMENT"}
+SHIP_ARGS=${SHIP_ARGS-"--as-dqn"}
 # shellcheck disable=SC2086
 $PY baselines/ship_dqn.py --checkpoint "$RUN/q_network.pt" --out "$OUT" $SHIP_ARGS
 $PY baselines/evaluate.py --policy explore --then dqn --checkpoint "$OUT" --episodes 50 \

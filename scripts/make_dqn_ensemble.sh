@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Reproduce agents/weights/dqn_ensemble.pt (docs/control.md §14): five runs of the shipped DQN's preset
 # (hold_stay_fine, seeds 0-4, 100 training episodes each; seed 0's run is agents/weights/dqn.pt's) shipped as one
-# agent acting on the mean of their Q-values, deployed as dqn.pt is (the FCN's box on unseen objects, its bars,
-# the fine moves), then evaluated on 50 held-out episodes. It has learned from 500 episodes, five times the
+# agent acting on the mean of their Q-values, deployed as dqn.pt is (the FCN's box on unseen objects, its bars and
+# segmenting size, the fine moves and their zone), then evaluated on 50 held-out episodes. It has learned from 500 episodes, five times the
 # shipped agent's budget. ~6-8 min on 2 cores (two runs at a time).
 #   bash scripts/make_dqn_ensemble.sh                     # -> agents/weights/dqn_ensemble.pt
 #   SEEDS="5 6 7 8 9" OUT=/tmp/ensemble.pt bash scripts/make_dqn_ensemble.sh   # another five runs
@@ -29,11 +29,7 @@ wait "$FIRST"  # each lane's status: one that fails stops the script before it s
 wait "$SECOND"
 MEMBERS=()
 for seed in "${SEEDS[@]:1}"; do MEMBERS+=("$(run "$seed")/q_network.pt"); done
-BARS=$($PY -c "from mani_active_vision.envs import DQN_FCN_THRESHOLDS as t; print(*t)")  # acquire, track
-FINE=$($PY -c "from mani_active_vision.envs import DQN_FINE_STEP_SIZE as f; print(f)")
-SEGMENT=$($PY -c "from mani_active_vision.envs import FCN_SEGMENT_SIZE as s; print(s)")  # the camera's own 128²
 $PY baselines/ship_dqn.py --checkpoint "$(run "${SEEDS[0]}")/q_network.pt" --members "${MEMBERS[@]}" --out "$OUT" \
-    --fcn-acquire-threshold "${BARS% *}" --fcn-track-threshold "${BARS#* }" --fine-step-size "$FINE" \
-    --fcn-segment-size "$SEGMENT"
+    --as-dqn  # deployed as dqn.pt is: EnvConfig.as_dqn_deployed
 $PY baselines/evaluate.py --policy explore --then dqn --checkpoint "$OUT" --episodes 50 \
     --json "outputs/$(basename "$OUT" .pt)_shipped.json"

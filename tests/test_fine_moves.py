@@ -23,7 +23,13 @@ from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, input_dim
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import FINE, STAY, action_count, action_names, action_names_for
-from mani_active_vision.envs import EnvConfig
+from mani_active_vision.envs import (
+    DQN_FCN_THRESHOLDS,
+    DQN_FINE_NEAR_CENTRE,
+    DQN_FINE_STEP_SIZE,
+    FCN_SEGMENT_SIZE,
+    EnvConfig,
+)
 from mani_active_vision.recording.log import action_name
 
 FORWARD = mav.DIRECTIONS.index("forward")
@@ -75,6 +81,23 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
     assert torch.load(tmp_path / "sharp.pt", weights_only=True)["config"]["env"]["fcn_segment_size"] == 128
     zone = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "zone.pt"), fine_near_centre=0.2))
     assert kept.fine_near_centre == 0.3 and zone == kept.replace(fine_near_centre=0.2)
+    as_dqn = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "as_dqn.pt"), as_dqn=True))
+    acquire, track = DQN_FCN_THRESHOLDS
+    assert (
+        as_dqn
+        == trained.as_dqn_deployed().replace(object_set="unseen")
+        == kept.replace(
+            fcn_acquire_threshold=acquire,
+            fcn_track_threshold=track,
+            fcn_segment_size=FCN_SEGMENT_SIZE,
+            fine_step_size=DQN_FINE_STEP_SIZE,
+            fine_near_centre=DQN_FINE_NEAR_CENTRE,
+        )
+    )
+    bars = ship_dqn.ship(
+        ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "b.pt"), as_dqn=True, fcn_track_threshold=0.5)
+    )
+    assert bars == as_dqn.replace(fcn_track_threshold=0.5)  # what is given overrides
 
 
 def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
@@ -194,3 +217,15 @@ def test_the_memory_agent_takes_the_fine_moves_near_success():
         assert tables.to_env.tolist() == [7, 8, 9, 10, 11, 12, 6] and tables.to_env_full.tolist() == list(range(7))
     finally:
         env.close()
+
+
+def test_the_demo_evaluates_on_the_fcns_box_as_the_shipped_dqns_are_deployed(baseline_script):
+    demo = baseline_script("demo")
+    args = demo.Args()
+    fcn, ground_truth = demo.eval_env(args, "fcn"), demo.eval_env(args, "ground_truth")
+    assert (
+        fcn == args.env.replace(object_set="unseen").as_dqn_deployed() and fcn.fine_near_centre == DQN_FINE_NEAR_CENTRE
+    )
+    assert ground_truth == args.env.replace(object_set="unseen") and ground_truth.fine_step_size == DQN_FINE_STEP_SIZE
+    no_fine = demo.eval_env(dataclasses.replace(args, eval_fine_step_size=0.0), "fcn")
+    assert no_fine == fcn.replace(fine_step_size=0.0)
