@@ -38,6 +38,7 @@ from mani_active_vision.agents.q_network import QNetwork, load_q_network, save_q
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import (
     DQN_FCN_THRESHOLDS,
+    DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
     FCN_BOX_HOLD_STEPS,
     FCN_IMAGE_SIZE,
@@ -483,7 +484,9 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         fcn_acquire_threshold=acquire,
         fcn_track_threshold=track,
         fcn_segment_size=FCN_SEGMENT_SIZE,  # the network segments the camera's own 128² (docs/control.md §17)
+        fine_near_centre=DQN_FINE_NEAR_CENTRE,  # the fine moves only close to the centre (docs/control.md §18)
     )
+    assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused
     # action, its learning rate was decayed, and it learnt with the half steps near the target it takes deployed
     assert trained.fine_step_size == DQN_FINE_STEP_SIZE and config["fine_as_deployed"]
