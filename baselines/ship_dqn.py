@@ -4,10 +4,11 @@ target), with the env it was trained in kept as config["trained_env"].
 
     python baselines/ship_dqn.py --checkpoint runs/make_dqn/shipped/q_network.pt --out agents/weights/dqn.pt --as-dqn
 
-scripts/make_dqn.sh makes the shipped agent this way (`--as-dqn`: `EnvConfig.as_dqn_deployed`); `baselines/evaluate.py --policy explore --then dqn
---checkpoint agents/weights/dqn.pt` then evaluates it as deployed. Any `{"state_dict", "config": {"env"}}`
-checkpoint ships the same way: scripts/make_search.sh ships the memory agent (agents/search.py) with it. With
-`--members`, several DQN runs ship as one agent acting on their mean Q (scripts/make_dqn_ensemble.sh).
+scripts/make_dqn.sh makes the shipped agent this way (`--as-dqn`: `EnvConfig.as_dqn_deployed`);
+`baselines/evaluate.py --policy explore --then dqn --checkpoint agents/weights/dqn.pt` then evaluates it as
+deployed. Any `{"state_dict", "config": {"env"}}` checkpoint ships the same way: scripts/make_search.sh ships the
+memory agent (agents/search.py) with it. With `--members`, several DQN runs ship as one agent acting on their mean
+Q (scripts/make_dqn_ensemble.sh).
 """
 
 from __future__ import annotations
@@ -49,8 +50,8 @@ class Args:
     """the verifier probability a region near the last box needs to stay the box (0: the FCN checkpoint's, or with
     --as-dqn the DQNs')"""
     fine_step_size: float | None = None
-    """the deployed env's fine moves (0: none; None: those it was trained with; scripts/make_dqn.sh ships the DQN
-    with --as-dqn, envs.DQN_FINE_STEP_SIZE: it takes half steps near the target, trained with them or on the full step)"""
+    """the deployed env's fine moves (0: none; None: those it was trained with, or with --as-dqn
+    envs.DQN_FINE_STEP_SIZE: half steps near the target, for a DQN trained with them or on the full step)"""
     fcn_segment_size: int | None = None
     """the side the deployed FCN segments the camera's frame at (`EnvConfig.fcn_segment_size`; 0: the network's
     training size; None: the trained env's, or with --as-dqn envs.FCN_SEGMENT_SIZE, the camera's own 128²,
