@@ -50,6 +50,10 @@ a full step passes over the few views in success; elsewhere (far, off-centre, pu
 cost time (docs/control.md §11, §18)."""
 
 
+BORDER = 1 / 128
+"""a box edge this close to the image's (a fraction of its side: one pixel at 128²) touches it"""
+
+
 def near_target(box: np.ndarray, centre: float = FINE_NEAR_CENTRE) -> np.ndarray:
     """(N,) bool: the boxes (N, 4+) that are near success (`NEAR_AREA`, the centre within `centre` of the image's),
     where the fine moves are taken."""
@@ -57,6 +61,24 @@ def near_target(box: np.ndarray, centre: float = FINE_NEAR_CENTRE) -> np.ndarray
     area = w * h
     centred = (np.abs(x + w / 2 - 0.5) <= centre) & (np.abs(y + h / 2 - 0.5) <= centre)
     return (area >= NEAR_AREA[0]) & (area <= NEAR_AREA[1]) & centred
+
+
+def too_close(box: np.ndarray, area: float) -> np.ndarray:
+    """(N,) bool: the boxes (N, 4+) that touch the image's border (within `BORDER`) and cover at least `area` of
+    the image: the target pushed too close and cut, where a DQN steps back (`EnvConfig.back_when_close`; 0: never)."""
+    x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
+    cut = (x <= BORDER) | (y <= BORDER) | (x + w >= 1 - BORDER) | (y + h >= 1 - BORDER)
+    return (area > 0) & (w > 0) & cut & (w * h >= area)
+
+
+def back_when_close(env) -> float:
+    """The env's `back_when_close` (`DiscreteDirections`'; a vector env's first worker's; 0 where it has none)."""
+    try:
+        if hasattr(env, "get_wrapper_attr"):
+            return float(env.get_wrapper_attr("back_when_close"))
+        return float(env.get_attr("back_when_close")[0])
+    except AttributeError:
+        return 0.0
 
 
 def fine_near_centre(env) -> float:
@@ -384,7 +406,9 @@ class DQNPolicy:
     the fine moves (`ActionMap`).
     With `avoid_refused` (read from the checkpoint's config too) a greedy action the controller has just refused
     is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
-    repeat it to the episode's end (docs/control.md §7).
+    repeat it to the episode's end (docs/control.md §7). Where the env says so (`EnvConfig.back_when_close`,
+    `too_close`) it steps backward while the box is cut by the border and large: views too close that the networks
+    never learnt from (docs/control.md §19).
 
     In an env with the fine moves (env.fine_step_size) a network trained on the six directions (and `stay`) takes
     the fine move of each direction it chooses while the box is near success (`near_target`): there half a step
@@ -410,6 +434,7 @@ class DQNPolicy:
         self.last_action = np.full(self.num_envs, -1)
         self.num_actions = self.q_network.num_actions
         self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
+        self.back_when_close = back_when_close(env)
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -437,6 +462,7 @@ class DQNPolicy:
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
         action = q.argmax(-1).numpy().astype(np.int64)
+        action[too_close(box_array(obs), self.back_when_close)] = BACKWARD
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action

@@ -106,7 +106,8 @@ class DiscreteDirections(gym.ActionWrapper):
     Each direction is turned into the Cartesian step from the controller's current target, so that orbit
     steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
     `fine_near_centre` is where policies take the fine moves (`agents.policies.near_target`): it is kept here,
-    with the moves, so that a policy reads it from the env it acts in (`agents.policies.fine_near_centre`).
+    with the moves, so that a policy reads it from the env it acts in (`agents.policies.fine_near_centre`), as
+    it reads `back_when_close` (`agents.policies.too_close`).
     """
 
     def __init__(
@@ -115,6 +116,7 @@ class DiscreteDirections(gym.ActionWrapper):
         stay_action: bool = False,
         fine_step: float = 0.0,
         fine_near_centre: float = FINE_NEAR_CENTRE,
+        back_when_close: float = 0.0,
     ):
         super().__init__(env)
         base = env.unwrapped
@@ -128,7 +130,9 @@ class DiscreteDirections(gym.ActionWrapper):
             raise ValueError(
                 f"fine_near_centre={fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
             )
-        self.fine_step, self.fine_near_centre = fine_step, fine_near_centre
+        if not 0 <= back_when_close <= 1:
+            raise ValueError(f"back_when_close={back_when_close!r} must be in [0, 1] (0: off): a share of the image")
+        self.fine_step, self.fine_near_centre, self.back_when_close = fine_step, fine_near_centre, back_when_close
         self.names = action_names(stay_action, fine_step > 0)
         n = len(self.names)
         self.action_space = gym.spaces.MultiDiscrete([n] * self.num_envs) if self._batched else gym.spaces.Discrete(n)

@@ -37,6 +37,7 @@ from mani_active_vision.agents.policies import (
 from mani_active_vision.agents.q_network import QNetwork, load_q_network, save_q_network
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import (
+    DQN_BACK_WHEN_CLOSE,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
@@ -485,6 +486,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         fcn_track_threshold=track,
         fcn_segment_size=FCN_SEGMENT_SIZE,  # the network segments the camera's own 128² (docs/control.md §17)
         fine_near_centre=DQN_FINE_NEAR_CENTRE,  # the fine moves only close to the centre (docs/control.md §18)
+        back_when_close=DQN_BACK_WHEN_CLOSE,  # a step back when pushed too close (docs/control.md §19)
     )
     assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused

@@ -15,15 +15,18 @@ from mani_active_vision.agents.policies import (
     ActionMap,
     MemoryPolicy,
     ServoPolicy,
+    back_when_close,
     env_actions,
     fine_near_centre,
     make_policy,
+    too_close,
 )
 from mani_active_vision.agents.q_network import load_q_network
 from mani_active_vision.agents.recurrent_network import RecurrentActorCritic, input_dim
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import FINE, STAY, action_count, action_names, action_names_for
 from mani_active_vision.envs import (
+    DQN_BACK_WHEN_CLOSE,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
@@ -34,6 +37,8 @@ from mani_active_vision.recording.log import action_name
 
 FORWARD = mav.DIRECTIONS.index("forward")
 DOWN = mav.DIRECTIONS.index("down")
+BACKWARD = mav.DIRECTIONS.index("backward")
+STAY_INDEX = action_names(stay_action=True).index(STAY)
 
 
 def test_the_fine_moves_follow_the_six_and_stay_and_are_shorter():
@@ -92,6 +97,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
+            back_when_close=DQN_BACK_WHEN_CLOSE,
         )
     )
     bars = ship_dqn.ship(
@@ -140,6 +146,28 @@ def test_the_policies_take_the_fine_moves_within_the_envs_fine_near_centre():
         assert int(policy.act(low, {})[0]) == expected
     with pytest.raises(ValueError, match=r"fine_near_centre=0.0 must be in \(0, 0.5\]"):
         EnvConfig(fine_near_centre=0.0)
+
+
+def test_a_dqn_steps_back_where_the_env_says_the_box_is_too_close():
+    """With `back_when_close` (the deployed DQNs' 0.2) a DQN steps backward while its box touches the image's border
+    and covers that share of the image or more; elsewhere, and at 0 (the default), it takes its own choice."""
+    cut_large = torch.tensor([[0.41, 0.12, 0.46, 0.88]])  # a forward push's view: 40% of the image, cut below
+    cut_small = torch.tensor([[0.0, 0.4, 0.2, 0.2]])  # cut, 4% of the image
+    whole_large = torch.tensor([[0.2, 0.2, 0.6, 0.6]])  # 36%, inside the image
+    assert too_close(torch.cat([cut_large, cut_small, whole_large]).numpy(), 0.2).tolist() == [True, False, False]
+    assert not too_close(cut_large.numpy(), 0.0).any()
+    for back, expected in ((0.0, STAY_INDEX), (DQN_BACK_WHEN_CLOSE, BACKWARD)):
+        env = BoxState(mav.DiscreteDirections(cached_task(start_pose="search"), True, back_when_close=back))
+        assert back_when_close(env) == back
+        q_network = dqn.QNetwork(4, num_actions=7)
+        with torch.no_grad():
+            q_network.network[2].weight.zero_()
+            q_network.network[2].bias[:] = torch.tensor([0.0, 0, 0, 0, 0, 0, 1])  # prefers stay
+        policy = make_policy("dqn", env, q_network=q_network)
+        policy.reset(cut_large, {})
+        assert int(policy.act(cut_large, {})[0]) == expected and int(policy.act(whole_large, {})[0]) == STAY_INDEX
+    with pytest.raises(ValueError, match=r"back_when_close=1.5 must be in \[0, 1\]"):
+        EnvConfig(back_when_close=1.5)
 
 
 def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):
