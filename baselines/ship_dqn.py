@@ -36,8 +36,8 @@ class Args:
     """where the shipped checkpoint goes"""
     as_dqn: bool = False
     """deploy it as the shipped DQNs are (`EnvConfig.as_dqn_deployed`: the verifier's bars, the FCN's segmenting
-    size, the fine moves and their zone of envs' DQN constants; scripts/make_dqn.sh); the options below, where
-    given, still override"""
+    size, the fine moves and their zone, the step back when too close, of envs' DQN constants; scripts/make_dqn.sh);
+    the options below, where given, still override"""
     object_set: str = "unseen"
     """the deployed objects: never seen in training"""
     box_hold_steps: int = FCN_BOX_HOLD_STEPS
