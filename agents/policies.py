@@ -71,12 +71,15 @@ def too_close(box: np.ndarray, area: float) -> np.ndarray:
     return (area > 0) & (w > 0) & cut & (w * h >= area)
 
 
+def directions_option(env, name: str):
+    """An option of the env's `DiscreteDirections` (a vector env's first worker's), as its policies read it."""
+    return env.get_wrapper_attr(name) if hasattr(env, "get_wrapper_attr") else env.get_attr(name)[0]
+
+
 def back_when_close(env) -> float:
-    """The env's `back_when_close` (`DiscreteDirections`'; a vector env's first worker's; 0 where it has none)."""
+    """The env's `back_when_close` (0 where it has none)."""
     try:
-        if hasattr(env, "get_wrapper_attr"):
-            return float(env.get_wrapper_attr("back_when_close"))
-        return float(env.get_attr("back_when_close")[0])
+        return float(directions_option(env, "back_when_close"))
     except AttributeError:
         return 0.0
 
@@ -86,9 +89,7 @@ def fine_near_centre(env) -> float:
     take the fine moves; the default for an env without them, where it is never used."""
     if num_actions(env) <= len(DIRECTIONS) + 1:
         return FINE_NEAR_CENTRE
-    if hasattr(env, "get_wrapper_attr"):
-        return float(env.get_wrapper_attr("fine_near_centre"))
-    return float(env.get_attr("fine_near_centre")[0])
+    return float(directions_option(env, "fine_near_centre"))
 
 
 def box_array(obs) -> np.ndarray:
@@ -462,7 +463,8 @@ class DQNPolicy:
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
         action = q.argmax(-1).numpy().astype(np.int64)
-        action[too_close(box_array(obs), self.back_when_close)] = BACKWARD
+        if self.back_when_close:
+            action[too_close(box_array(obs), self.back_when_close)] = BACKWARD
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action
