@@ -5,7 +5,8 @@ load of a shared machine (printed with each round) falls alike on all of them, a
 rates taken side by side. Subjects:
 - the reference: the paper's setup rebuilt in PyBullet (`pybullet_reference.py`), at 128² and 256²;
 - our task, one env (`make_env`: new objects every episode, like the reference), 128² and 256²
-  rgb+segmentation, and with `state` observations (the reward still renders the segmentation);
+  rgb+segmentation, at 128² also with the wrist camera on SAPIEN's `minimal` shader pack (before
+  `mani_active_vision.wrist_shader`), and with `state` observations (the reward still renders the segmentation);
 - the agent loop: the env with the FCN's box (`box_source="fcn"`) and a Q-network choosing the actions, with the
   network segmenting at its 64² and at the camera's 128² (`envs.FCN_SEGMENT_SIZE`, as the shipped DQN is deployed);
 - 1, 2 and 4 worker processes (`make_vec_env`, 128²) with their share of the cores and pinned to them
@@ -37,7 +38,7 @@ import tyro
 
 import mani_active_vision as mav
 from mani_active_vision.agents.q_network import QNetwork
-from mani_active_vision.envs import ENV_ID, FCN_SEGMENT_SIZE, EnvConfig, make_env
+from mani_active_vision.envs import ENV_ID, FCN_SEGMENT_SIZE, EnvConfig, make_env, wrap_env
 from mani_active_vision.json_io import save_json
 from mani_active_vision.threads import available_cores
 from mani_active_vision.vec_env import make_vec_env
@@ -121,6 +122,13 @@ def make_pool(num_workers: int, lavapipe_default: bool = False, pin: bool = True
         del os.environ["LP_NUM_THREADS"]
 
 
+def minimal_shader_env(config: EnvConfig) -> gym.Env:
+    """`make_env(config)` with the wrist camera on SAPIEN's two-pass `minimal` pack (the same images)."""
+    kwargs = config.task_kwargs()
+    kwargs["sensor_configs"]["hand_camera"]["shader_pack"] = "minimal"  # ManiSkill's way to choose a shader
+    return wrap_env(gym.make(ENV_ID, **kwargs), config)
+
+
 def subjects(args: Args) -> dict:
     """name -> (how to make it, reference name or None)"""
     ours = lambda size, **kw: EnvConfig(start_pose="search", image_size=size, **kw)
@@ -135,6 +143,10 @@ def subjects(args: Args) -> dict:
             lambda size=size: Single(make_env(ours(size, box_source="none"))),
             f"PyBullet reference, {size}²",
         )
+    table["ours, 1 env, 128², the wrist camera on SAPIEN's `minimal` shader pack"] = (
+        lambda: Single(minimal_shader_env(ours(128, box_source="none"))),
+        "PyBullet reference, 128²",
+    )
     table["ours, 1 env, state (128² segmentation for the reward)"] = (
         lambda: Single(mav.DiscreteDirections(gym.make(ENV_ID, **{**ours(128).task_kwargs(), "obs_mode": "state"}))),
         "PyBullet reference, 128²",

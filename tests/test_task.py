@@ -14,6 +14,7 @@ from mani_active_vision.boxes import silhouette, silhouette_iou
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.evaluation.views import aimed_qpos
 from mani_active_vision.objects import object_set
+from mani_active_vision.wrist_shader import derived_pack
 
 
 def test_registered_and_observation_layout():
@@ -174,14 +175,17 @@ def test_no_distractor_is_an_identical_twin_of_the_target():
     assert same_shape > 10  # the look-alikes are still there, in other colours
 
 
-def test_culling_and_the_floor_in_pieces_leave_every_pixel_as_it_was(monkeypatch):
+def test_culling_the_floor_in_pieces_and_the_wrist_shader_leave_every_pixel_as_it_was(monkeypatch):
     """Same seed, same actions: the task renders the same rgb, segmentation, target image and reward as with
-    ManiSkill's one-mesh floor and no culling (as it rendered before), also where the robot's base is in view,
-    and `render()` after culled frames shows everything again."""
+    ManiSkill's one-mesh floor, no culling and SAPIEN's `minimal` shader pack on the wrist camera (as it
+    rendered before), also where the robot's base is in view, and `render()` after culled frames shows
+    everything again."""
     moves = ["down"] * 6 + ["backward"] * 6 + list(np.random.default_rng(0).choice(mav.DIRECTIONS, 20))
 
-    def rollout(cull: bool):
+    def rollout(cull: bool, shader_pack: str | None = None):
         kwargs = mav.EnvConfig(start_pose="search").task_kwargs()
+        if shader_pack is not None:  # ManiSkill's way to choose a camera's shader
+            kwargs["sensor_configs"]["hand_camera"]["shader_pack"] = shader_pack
         env = mav.DiscreteDirections(gym.make("ActiveVisionFind-v0", render_mode="rgb_array", **kwargs))
         env.unwrapped.cull = cull
         frames = dict(target=[], rgb=[], segmentation=[], reward=[], human=[])
@@ -195,13 +199,16 @@ def test_culling_and_the_floor_in_pieces_leave_every_pixel_as_it_was(monkeypatch
                 frames["reward"].append(reward)
             frames["human"].append(env.render())
         links = [i for i, part in env.unwrapped.segmentation_id_map.items() if isinstance(part, Link)]
+        pack = env.unwrapped._sensors["hand_camera"].config.shader_pack
         env.close()
-        return {k: torch.cat(v) for k, v in frames.items()}, links
+        return {k: torch.cat(v) for k, v in frames.items()}, links, pack
 
-    now, links = rollout(cull=True)
+    now, links, pack = rollout(cull=True)
+    assert pack == str(derived_pack()), "the wrist camera does not use the one-pass pack"
     with monkeypatch.context() as patch:
         patch.setattr(task, "build_floor", build_ground)
-        before, _ = rollout(cull=False)
+        before, _, pack = rollout(cull=False, shader_pack="minimal")
+    assert pack == "minimal"
     for key in now:
         assert torch.equal(now[key], before[key]), key
     assert torch.isin(now["segmentation"], torch.tensor(links)).any(), "the robot never came into view"

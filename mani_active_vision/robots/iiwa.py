@@ -13,6 +13,7 @@ from mani_skill.agents.base_agent import BaseAgent, Keyframe
 from mani_skill.agents.registration import register_agent
 from mani_skill.sensors.camera import CameraConfig
 
+from ..wrist_shader import wrist_shader_config
 from .orbit_controller import CAMERA_OFFSET, OrbitEEPosControllerConfig, solve_ik
 
 ARM_JOINTS = [f"lbr_iiwa_joint_{i}" for i in range(1, 8)]
@@ -82,6 +83,7 @@ class IiwaWristCam(BaseAgent):
                 near=0.01,
                 far=10.0,
                 mount=self.robot.links_map[EE_LINK],
+                shader_config=wrist_shader_config(),  # the same images as ManiSkill's `minimal`, in one pass
             )
         ]
 
