@@ -408,8 +408,8 @@ class DQNPolicy:
     With `avoid_refused` (read from the checkpoint's config too) a greedy action the controller has just refused
     is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
     repeat it to the episode's end (docs/control.md §7). Where the env says so (`EnvConfig.back_when_close`,
-    `too_close`) it steps backward while the box is cut by the border and large: views too close that the networks
-    never learnt from (docs/control.md §19).
+    `too_close`) it steps backward while the box, seen this step (not held: `info["box_held"]`), is cut by the
+    border and large: views too close that the networks never learnt from (docs/control.md §19–20).
 
     In an env with the fine moves (env.fine_step_size) a network trained on the six directions (and `stay`) takes
     the fine move of each direction it chooses while the box is near success (`near_target`): there half a step
@@ -463,8 +463,9 @@ class DQNPolicy:
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
         action = q.argmax(-1).numpy().astype(np.int64)
-        if self.back_when_close:
-            action[too_close(box_array(obs), self.back_when_close)] = BACKWARD
+        if self.back_when_close:  # on a box seen now: a held one does not change as the camera steps back
+            close = too_close(box_array(obs), self.back_when_close) & ~info_flags(info, "box_held", self.num_envs)
+            action[close] = BACKWARD
         explore = self.rng.random(self.num_envs) < self.epsilon
         action[explore] = self.rng.integers(0, self.num_actions, size=int(explore.sum()))
         self.last_action[:] = action

@@ -39,7 +39,7 @@ class BoxState(gym.ObservationWrapper):
     needs, and one near the region kept at the previous step of the same episode (0: the checkpoint's
     `verifier_threshold`; `OneShotFCN.predict_with_presence`). (0, 0): every frame judged alone.
     `hold_steps`: while the mask is empty, the last box seen in the episode is given for up to this many steps
-    (the mask and presence stay the source's own); 0: off.
+    (the mask and presence stay the source's own; `info["box_held"]` says where the box is a held one); 0: off.
     """
 
     def __init__(
@@ -80,6 +80,7 @@ class BoxState(gym.ObservationWrapper):
         self.hold_steps = hold_steps
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
+        self._held_now: torch.Tensor | None = None  # (N,) bool: the latest observation's box is a held one
         dim = 4 + 3 * with_ee_pos + with_presence + 3 * with_mask_stats
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
@@ -100,7 +101,18 @@ class BoxState(gym.ObservationWrapper):
                 self._held = self._unseen_for = None
             else:
                 self._held[torch.as_tensor(env_idx, device=self._held.device)] = 0.0
-        return super().reset(seed=seed, options=options)
+        obs, info = super().reset(seed=seed, options=options)
+        return obs, self._with_held(info)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        return obs, reward, terminated, truncated, self._with_held(info)
+
+    def _with_held(self, info: dict) -> dict:
+        """`info` with "box_held" where boxes are held (a bool, or (N,) for batched envs)."""
+        if self.hold_steps:
+            info["box_held"] = bool(self._held_now[0]) if self._numpy else self._held_now
+        return info
 
     def observation(self, obs):
         base = self.env.unwrapped
@@ -143,7 +155,8 @@ class BoxState(gym.ObservationWrapper):
             self._unseen_for = torch.zeros(len(box), dtype=torch.long, device=box.device)
         self._unseen_for = torch.where(seen, 0, self._unseen_for + 1)
         self._held = torch.where(seen[:, None], box, self._held)
-        use = ~seen & (self._unseen_for <= self.hold_steps)
+        use = ~seen & (self._unseen_for <= self.hold_steps) & (self._held[:, 2] > 0)
+        self._held_now = use
         return torch.where(use[:, None], self._held, box)
 
 

@@ -135,9 +135,9 @@ class EnvConfig:
     fraction of the side) for the policies to take the fine moves (`agents.policies.near_target`); the shipped
     DQNs are deployed at DQN_FINE_NEAR_CENTRE (docs/control.md §18)"""
     back_when_close: float = 0.0
-    """0: off; > 0: a DQN policy steps backward (zoom out) instead of its choice while the box touches the image's
-    border and covers at least this share of the image (`agents.policies.too_close`); the shipped DQNs are deployed
-    at DQN_BACK_WHEN_CLOSE (docs/control.md §19)"""
+    """0: off; > 0: a DQN policy steps backward (zoom out) instead of its choice while the box, seen this step (not
+    held), touches the image's border and covers at least this share of the image (`agents.policies.too_close`); the
+    shipped DQNs are deployed at DQN_BACK_WHEN_CLOSE (docs/control.md §19–20)"""
 
     def __post_init__(self):
         if self.box_source not in BOX_SOURCE_CHOICES:

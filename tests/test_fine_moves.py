@@ -149,8 +149,9 @@ def test_the_policies_take_the_fine_moves_within_the_envs_fine_near_centre():
 
 
 def test_a_dqn_steps_back_where_the_env_says_the_box_is_too_close():
-    """With `back_when_close` (the deployed DQNs' 0.2) a DQN steps backward while its box touches the image's border
-    and covers that share of the image or more; elsewhere, and at 0 (the default), it takes its own choice."""
+    """With `back_when_close` (the deployed DQNs' 0.2) a DQN steps backward while its box, seen this step, touches
+    the image's border and covers that share of the image or more; elsewhere, on a held box (`info["box_held"]`: it
+    would not change as the camera steps back) and at 0 (the default), it takes its own choice."""
     cut_large = torch.tensor([[0.41, 0.12, 0.46, 0.88]])  # a forward push's view: 40% of the image, cut below
     cut_small = torch.tensor([[0.0, 0.4, 0.2, 0.2]])  # cut, 4% of the image
     whole_large = torch.tensor([[0.2, 0.2, 0.6, 0.6]])  # 36%, inside the image
@@ -166,6 +167,7 @@ def test_a_dqn_steps_back_where_the_env_says_the_box_is_too_close():
         policy = make_policy("dqn", env, q_network=q_network)
         policy.reset(cut_large, {})
         assert int(policy.act(cut_large, {})[0]) == expected and int(policy.act(whole_large, {})[0]) == STAY_INDEX
+        assert int(policy.act(cut_large, {"box_held": True})[0]) == STAY_INDEX
     with pytest.raises(ValueError, match=r"back_when_close=1.5 must be in \[0, 1\]"):
         EnvConfig(back_when_close=1.5)
 

@@ -565,12 +565,13 @@ def test_box_hold_keeps_the_last_box_seen_for_its_steps_and_forgets_it_at_reset(
     task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
     segmenter = Scripted([True, False, False, False, True, False])
     env = BoxState(task, source="fcn", segmenter=segmenter, hold_steps=2)
-    boxes = [env.reset(seed=0)[0]] + [env.step(0)[0] for _ in range(5)]
-    boxes = [torch.as_tensor(b).reshape(-1).numpy() for b in boxes]
+    outputs = [env.reset(seed=0)] + [env.step(0) for _ in range(5)]
+    boxes = [torch.as_tensor(out[0]).reshape(-1).numpy() for out in outputs]
     seen = boxes[0]
     assert seen[2] > 0 and np.allclose(boxes[1], seen) and np.allclose(boxes[2], seen)  # held 2 steps
     assert not boxes[3].any() and env.last_mask is not None and not env.last_mask.any()  # then not seen
     assert np.allclose(boxes[4], seen) and np.allclose(boxes[5], seen)  # seen again, held again
+    assert [out[-1]["box_held"] for out in outputs] == [False, True, True, False, False, True]  # info says which
     segmenter.seen = [False]
     assert not torch.as_tensor(env.reset(seed=0)[0]).any()  # a new episode holds nothing of the last
     with pytest.raises(ValueError, match="box_hold_steps=-1 must be an integer of at least 0"):
