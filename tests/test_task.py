@@ -10,11 +10,11 @@ from mani_skill.utils.structs import Link
 
 import mani_active_vision as mav
 import mani_active_vision.tasks.active_vision_find as task
+from mani_active_vision import wrist_shader
 from mani_active_vision.boxes import silhouette, silhouette_iou
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.evaluation.views import aimed_qpos
 from mani_active_vision.objects import object_set
-from mani_active_vision.wrist_shader import derived_pack
 
 
 def test_registered_and_observation_layout():
@@ -175,6 +175,20 @@ def test_no_distractor_is_an_identical_twin_of_the_target():
     assert same_shape > 10  # the look-alikes are still there, in other colours
 
 
+def test_the_wrist_shader_pack_is_written_once_and_reused_not_taken_from_a_folder_that_differs(monkeypatch, tmp_path):
+    """Every process finds the one-pass pack in the folder named by its contents (workers exit without clean-up,
+    so a folder per process would pile up); a folder of that name that holds something else is not used."""
+    monkeypatch.setattr(wrist_shader.tempfile, "tempdir", str(tmp_path))
+    folder = wrist_shader.derived_pack.__wrapped__()
+    assert folder.parent == tmp_path and wrist_shader.derived_pack.__wrapped__() == folder
+    assert [p.name for p in tmp_path.iterdir()] == [folder.name]  # nothing else left behind
+    gbuffer = (folder / "gbuffer.frag").read_text()
+    assert "specularIBL(fresnel" not in gbuffer and "outColorRaw" not in gbuffer and "out vec4 outColor;" in gbuffer
+    (folder / "gbuffer.frag").write_text(gbuffer.replace("outColor", "outColorRaw"))  # tampered with
+    private = wrist_shader.derived_pack.__wrapped__()
+    assert private != folder and private.parent == tmp_path and (private / "gbuffer.frag").read_text() == gbuffer
+
+
 def test_culling_the_floor_in_pieces_and_the_wrist_shader_leave_every_pixel_as_it_was(monkeypatch):
     """Same seed, same actions: the task renders the same rgb, segmentation, target image and reward as with
     ManiSkill's one-mesh floor, no culling and SAPIEN's `minimal` shader pack on the wrist camera (as it
@@ -204,7 +218,7 @@ def test_culling_the_floor_in_pieces_and_the_wrist_shader_leave_every_pixel_as_i
         return {k: torch.cat(v) for k, v in frames.items()}, links, pack
 
     now, links, pack = rollout(cull=True)
-    assert pack == str(derived_pack()), "the wrist camera does not use the one-pass pack"
+    assert pack == str(wrist_shader.derived_pack()), "the wrist camera does not use the one-pass pack"
     with monkeypatch.context() as patch:
         patch.setattr(task, "build_floor", build_ground)
         before, _, pack = rollout(cull=False, shader_pack="minimal")
