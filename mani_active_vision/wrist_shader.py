@@ -63,9 +63,13 @@ def derived_pack() -> Path | None:
     folder = Path(tempfile.gettempdir()) / f"mani_active_vision_shader_{os.getuid()}_{digest}"
     if _holds(folder, files):
         return folder
-    staging = Path(tempfile.mkdtemp(prefix=f"{folder.name}_", dir=folder.parent))
-    for name, text in files.items():
-        (staging / name).write_text(text)
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f"{folder.name}_", dir=folder.parent))
+        for name, text in files.items():
+            (staging / name).write_text(text)
+    except OSError as error:
+        warnings.warn(f"the wrist camera uses SAPIEN's 'minimal' shader pack: {error}", stacklevel=2)
+        return None
     try:
         staging.rename(folder)  # atomic: where another process made it first, this fails and theirs is used
     except OSError:

@@ -187,6 +187,9 @@ def test_the_wrist_shader_pack_is_written_once_and_reused_not_taken_from_a_folde
     (folder / "gbuffer.frag").write_text(gbuffer.replace("outColor", "outColorRaw"))  # tampered with
     private = wrist_shader.derived_pack.__wrapped__()
     assert private != folder and private.parent == tmp_path and (private / "gbuffer.frag").read_text() == gbuffer
+    monkeypatch.setattr(wrist_shader.tempfile, "tempdir", str(tmp_path / "missing"))  # nowhere to write: `minimal`
+    with pytest.warns(UserWarning, match="uses SAPIEN's 'minimal' shader pack"):
+        assert wrist_shader.derived_pack.__wrapped__() is None
 
 
 def test_culling_the_floor_in_pieces_and_the_wrist_shader_leave_every_pixel_as_it_was(monkeypatch):
