@@ -11,10 +11,11 @@ compiles the shaders; texture sampling is what it pays most for).
 
 The pack here is derived from the installed SAPIEN's `minimal` when first asked for (nothing of SAPIEN's is
 copied into the project): the image-based lines removed and the lit colour written as the final `Color`, in one
-pass. It is written once per user and SAPIEN version to a folder in the system's temporary directory named by
-its contents, which every process (worker processes too, which exit without clean-up) then reuses. The images are bit-identical (`tests/test_task.py`
-renders with `minimal` beside it); the frame costs ~0.9 ms less at 128² (docs/speed.md). Where the installed
-SAPIEN's sources differ from what is expected, the wrist camera keeps `minimal` and a warning says so.
+pass. It is written once per user and SAPIEN version to a folder of the system's temporary directory named by
+its contents, which every process then reuses (worker processes exit without clean-up: a folder per process
+would pile up). The images are bit-identical (`tests/test_task.py` renders with `minimal` beside it); the frame
+costs ~0.9 ms less at 128² (docs/speed.md). Where the installed SAPIEN's sources differ from what is expected,
+or the folder cannot be written, the wrist camera keeps `minimal` and a warning says so.
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ INCLUDE = '#include "../common/'
 
 @cache
 def derived_pack() -> Path | None:
-    """The folder of the one-pass pack, or None where SAPIEN's `minimal` is not the version this was derived from."""
+    """The folder of the one-pass pack; None where SAPIEN's `minimal` is not the version this was derived from or
+    the folder cannot be written."""
     gbuffer = (MINIMAL / "gbuffer.frag").read_text()
     if IMAGE_BASED_LIGHTING not in gbuffer or gbuffer.count(COMPOSITED_OUTPUT) != 2:
         warnings.warn(
@@ -94,6 +96,9 @@ def wrist_shader_config() -> ShaderConfig:
     segmentation in one texture)."""
     minimal = PREBUILT_SHADER_CONFIGS["minimal"]
     folder = derived_pack()
+    if folder is not None and not folder.exists():  # the temporary directory was cleaned while this process ran
+        derived_pack.cache_clear()
+        folder = derived_pack()
     if folder is None:
         return minimal
     # ManiSkill sets these formats only for packs named "minimal"; they are global, read when a camera is made.

@@ -1,5 +1,8 @@
 """ActiveVisionFind-v0: registration, observations, reward, determinism, object sets, bad options."""
 
+import shutil
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -190,6 +193,15 @@ def test_the_wrist_shader_pack_is_written_once_and_reused_not_taken_from_a_folde
     monkeypatch.setattr(wrist_shader.tempfile, "tempdir", str(tmp_path / "missing"))  # nowhere to write: `minimal`
     with pytest.warns(UserWarning, match="uses SAPIEN's 'minimal' shader pack"):
         assert wrist_shader.derived_pack.__wrapped__() is None
+    monkeypatch.setattr(wrist_shader.tempfile, "tempdir", str(tmp_path / "cleaned"))
+    (tmp_path / "cleaned").mkdir()
+    wrist_shader.derived_pack.cache_clear()
+    try:
+        first = Path(wrist_shader.wrist_shader_config().shader_pack)
+        shutil.rmtree(first)  # the temporary directory cleaned while the process runs: written again
+        assert Path(wrist_shader.wrist_shader_config().shader_pack) == first and (first / "gbuffer.frag").exists()
+    finally:
+        wrist_shader.derived_pack.cache_clear()
 
 
 def test_culling_the_floor_in_pieces_and_the_wrist_shader_leave_every_pixel_as_it_was(monkeypatch):
