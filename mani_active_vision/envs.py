@@ -59,7 +59,8 @@ DQN_BACK_WHEN_CLOSE = 0.2
 by the image's border and covers a fifth of the image or more. A push forward leaves the target that close and cut,
 a view the networks never learnt from (they stay or cycle there); with the step back their recovery after a
 6-step push rises from 0.92 to 0.95 and 0.96 on two sets (0.90 to 0.91 on a third, where sideways pushes fail
-most), success unchanged or higher (docs/control.md §19)."""
+most), success unchanged or higher (docs/control.md §19); on the first set 0.96 once it acts only on a box seen at
+that step, not a held one (§20)."""
 
 
 @dataclass(frozen=True)
