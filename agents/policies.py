@@ -71,6 +71,17 @@ def too_close(box: np.ndarray, area: float) -> np.ndarray:
     return (area > 0) & (w > 0) & cut & (w * h >= area)
 
 
+def looks_in_success(box: np.ndarray, success_fraction: float, center_tol: float) -> np.ndarray:
+    """(N,) bool: the box states (N, 7+), the mask stats last (`EnvConfig.with_mask_stats`: share, dx, dy), that
+    show a view in success as the task judges one on the true mask: the mask covers at least `success_fraction`
+    of the image, its centroid lies within `center_tol` (of the width) of the centre, its box is not cut by the
+    border (`EnvConfig.stay_needs_success`)."""
+    x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
+    share, dx, dy = box[:, -3], box[:, -2], box[:, -1]
+    cut = (x <= BORDER) | (y <= BORDER) | (x + w >= 1 - BORDER) | (y + h >= 1 - BORDER)
+    return (w > 0) & ~cut & (share >= success_fraction) & (np.hypot(dx, dy) <= center_tol)
+
+
 def directions_option(env, name: str):
     """An option of the env's `DiscreteDirections` (a vector env's first worker's), as its policies read it."""
     return env.get_wrapper_attr(name) if hasattr(env, "get_wrapper_attr") else env.get_attr(name)[0]
@@ -82,6 +93,14 @@ def back_when_close(env) -> float:
         return float(directions_option(env, "back_when_close"))
     except AttributeError:
         return 0.0
+
+
+def stay_needs_success(env) -> bool:
+    """The env's `stay_needs_success` (False where it has none)."""
+    try:
+        return bool(directions_option(env, "stay_needs_success"))
+    except AttributeError:
+        return False
 
 
 def fine_near_centre(env) -> float:
@@ -409,7 +428,10 @@ class DQNPolicy:
     is not taken again at once: a refused step leaves the state as it was, so a memoryless greedy policy would
     repeat it to the episode's end (docs/control.md §7). Where the env says so (`EnvConfig.back_when_close`,
     `too_close`) it steps backward while the box, seen this step (not held: `info["box_held"]`), is cut by the
-    border and large: views too close that the networks never learnt from (docs/control.md §19–20).
+    border and large: views too close that the networks never learnt from (docs/control.md §19–20). Where the env
+    says so (`EnvConfig.stay_needs_success`) a network with `stay` takes it only where the box's mask stats show a
+    view in success (`looks_in_success`, the task's own bars); a stay leaves the state as it was, so a greedy
+    network that stays off success would stay to the episode's end (docs/control.md §21).
 
     In an env with the fine moves (env.fine_step_size) a network trained on the six directions (and `stay`) takes
     the fine move of each direction it chooses while the box is near success (`near_target`): there half a step
@@ -436,6 +458,13 @@ class DQNPolicy:
         self.num_actions = self.q_network.num_actions
         self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
         self.back_when_close = back_when_close(env)
+        self.stay_guard = self.num_actions > len(DIRECTIONS) and stay_needs_success(env)
+        if self.stay_guard:
+            if not directions_option(env, "with_mask_stats"):
+                raise ValueError("stay_needs_success judges success from the mask stats: make the env with_mask_stats")
+            self.success_rule = tuple(
+                float(directions_option(env, k)) for k in ("success_fraction", "success_center_tol")
+            )
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -462,6 +491,8 @@ class DQNPolicy:
             q = self.q_network(torch.as_tensor(self.state(obs)))
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
+        if self.stay_guard:
+            q[torch.as_tensor(~looks_in_success(box_array(obs), *self.success_rule)), STAY_INDEX] = -torch.inf
         action = q.argmax(-1).numpy().astype(np.int64)
         if self.back_when_close:  # on a box seen now: a held one does not change as the camera steps back
             close = too_close(box_array(obs), self.back_when_close) & ~info_flags(info, "box_held", self.num_envs)

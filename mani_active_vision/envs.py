@@ -139,6 +139,12 @@ class EnvConfig:
     """0: off; > 0: a DQN policy steps backward (zoom out) instead of its choice while the box, seen this step (not
     held), touches the image's border and covers at least this share of the image (`agents.policies.too_close`); the
     shipped DQNs are deployed at DQN_BACK_WHEN_CLOSE (docs/control.md §19–20)"""
+    stay_needs_success: bool = False
+    """a DQN policy with `stay` takes it only where the box source's mask stats say the view is in success (its
+    share of the image at least success_fraction, its centroid within success_center_tol of the centre, its box
+    not cut by the border); elsewhere it takes its best move. A stay leaves the state as it was, so a greedy
+    network that stays off success stays to the episode's end. Needs with_mask_stats where stay_action is set;
+    the shipped DQNs are deployed with it (docs/control.md §21)"""
 
     def __post_init__(self):
         if self.box_source not in BOX_SOURCE_CHOICES:
@@ -172,6 +178,8 @@ class EnvConfig:
             raise ValueError(
                 f"back_when_close={self.back_when_close!r} must be in [0, 1] (0: off): a share of the image"
             )
+        if self.stay_needs_success and self.stay_action and not self.with_mask_stats:
+            raise ValueError("stay_needs_success judges success from the mask stats: it needs with_mask_stats=True")
         if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps={self.max_episode_steps!r} must be a positive integer")
 
@@ -218,12 +226,14 @@ class EnvConfig:
         """This config as the shipped DQNs are deployed: on the FCN's box (`on_fcn_box`) with the verifier's bars
         `DQN_FCN_THRESHOLDS`, the network segmenting at `FCN_SEGMENT_SIZE`, and the fine moves
         (`DQN_FINE_STEP_SIZE`) within `DQN_FINE_NEAR_CENTRE` of the image centre, and a step back when the box is
-        cut and `DQN_BACK_WHEN_CLOSE` of the image or more (docs/control.md §12, §17, §18, §19)."""
+        cut and `DQN_BACK_WHEN_CLOSE` of the image or more, and `stay` only where the mask stats say success (where the
+        state has them to judge by; every preset with `stay` does) (docs/control.md §12, §17, §18, §19, §21)."""
         return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
             back_when_close=DQN_BACK_WHEN_CLOSE,
+            stay_needs_success=self.with_mask_stats,
         )
 
     @classmethod
@@ -242,6 +252,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         fine_step=config.fine_step_size,
         fine_near_centre=config.fine_near_centre,
         back_when_close=config.back_when_close,
+        stay_needs_success=config.stay_needs_success,
     )
     if config.box_source == "none":
         return env

@@ -18,7 +18,9 @@ from mani_active_vision.agents.policies import (
     back_when_close,
     env_actions,
     fine_near_centre,
+    looks_in_success,
     make_policy,
+    stay_needs_success,
     too_close,
 )
 from mani_active_vision.agents.q_network import load_q_network
@@ -75,7 +77,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
     baseline_script, tmp_path
 ):
     ship_dqn = baseline_script("ship_dqn")
-    trained = EnvConfig(stay_action=True, fine_step_size=0.025)
+    trained = EnvConfig(stay_action=True, fine_step_size=0.025, with_mask_stats=True)
     checkpoint = str(tmp_path / "q.pt")
     torch.save({"state_dict": {}, "config": {"env": dataclasses.asdict(trained)}}, checkpoint)
     kept = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "kept.pt")))
@@ -98,6 +100,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             fine_step_size=DQN_FINE_STEP_SIZE,
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
             back_when_close=DQN_BACK_WHEN_CLOSE,
+            stay_needs_success=True,
         )
     )
     bars = ship_dqn.ship(
@@ -170,6 +173,40 @@ def test_a_dqn_steps_back_where_the_env_says_the_box_is_too_close():
         assert int(policy.act(cut_large, {"box_held": True})[0]) == STAY_INDEX
     with pytest.raises(ValueError, match=r"back_when_close=1.5 must be in \[0, 1\]"):
         EnvConfig(back_when_close=1.5)
+
+
+def test_a_dqn_stays_only_where_the_mask_stats_say_success_where_the_env_says_so():
+    """With `stay_needs_success` (the deployed DQNs') a DQN with `stay` takes it only where the box's mask stats show
+    a view in success by the task's bars (5% of the image, the centroid within 0.15, the box not cut); elsewhere its
+    next choice. Without it (the default) it stays wherever its network says."""
+    rows = {  # box (x, y, w, h), then the mask stats (share, dx, dy)
+        "in success": [0.4, 0.4, 0.25, 0.25, 0.06, 0.02, -0.03],
+        "off centre": [0.1, 0.4, 0.3, 0.3, 0.09, -0.18, 0.1],
+        "too small": [0.45, 0.45, 0.15, 0.15, 0.02, 0.0, 0.0],
+        "cut": [0.0, 0.3, 0.5, 0.5, 0.2, -0.1, 0.0],
+        "unseen": [0.0] * 7,
+    }
+    states = torch.tensor(list(rows.values()))
+    assert looks_in_success(states.numpy(), 0.05, 0.15).tolist() == [True, False, False, False, False]
+    for guard in (False, True):
+        task = cached_task(start_pose="search")
+        env = BoxState(mav.DiscreteDirections(task, True, stay_needs_success=guard), with_mask_stats=True)
+        assert stay_needs_success(env) == guard
+        q_network = dqn.QNetwork(7, num_actions=7)
+        with torch.no_grad():
+            q_network.network[2].weight.zero_()
+            q_network.network[2].bias[:] = torch.tensor([0.0, 0, 0.5, 0, 0, 0, 1])  # stay, else forward
+        policy = make_policy("dqn", env, q_network=q_network)
+        policy.reset(states[:1], {})
+        actions = [int(policy.act(state[None], {})[0]) for state in states]
+        assert actions == [STAY_INDEX] + [FORWARD if guard else STAY_INDEX] * 4
+    with pytest.raises(ValueError, match="stay_needs_success judges success from the mask stats"):
+        make_policy("dqn", BoxState(mav.DiscreteDirections(task, True, stay_needs_success=True)), q_network=q_network)
+    with pytest.raises(ValueError, match="stay_needs_success judges success from the mask stats"):
+        EnvConfig(stay_action=True, stay_needs_success=True)
+    assert EnvConfig(stay_needs_success=True).stay_needs_success  # nothing to guard without stay
+    assert not EnvConfig(stay_action=True).as_dqn_deployed().stay_needs_success  # nothing to judge it by
+    assert EnvConfig(stay_action=True, with_mask_stats=True).as_dqn_deployed().stay_needs_success
 
 
 def test_a_short_training_run_with_the_fine_moves_mirrors_them(tmp_path):
