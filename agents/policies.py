@@ -103,6 +103,25 @@ def stay_needs_success(env) -> bool:
         return False
 
 
+def stay_rule(env, num_actions: int) -> tuple[float, float] | None:
+    """The task's success bars (success_fraction, success_center_tol) where the env says that a policy with `stay`
+    takes it only where the box's mask stats show success (`EnvConfig.stay_needs_success`); None where it does not,
+    or where the policy has no `stay` (`num_actions`: its own)."""
+    if num_actions <= len(DIRECTIONS) or not stay_needs_success(env):
+        return None
+    if not directions_option(env, "with_mask_stats"):
+        raise ValueError("stay_needs_success judges success from the mask stats: make the env with_mask_stats")
+    return tuple(float(directions_option(env, name)) for name in ("success_fraction", "success_center_tol"))
+
+
+def rule_out_stay(scores: torch.Tensor, box: np.ndarray, rule: tuple[float, float]) -> torch.Tensor:
+    """`scores` (N, actions) with `stay` set to -inf where the box states (N, 7+) do not show success by `rule`
+    (`stay_rule`, `looks_in_success`): a stay leaves the state as it was, so a policy that stays off success would
+    stay there to the episode's end."""
+    scores[torch.as_tensor(~looks_in_success(box, *rule)), STAY_INDEX] = -torch.inf
+    return scores
+
+
 def fine_near_centre(env) -> float:
     """The env's `fine_near_centre` (`DiscreteDirections`'; a vector env's first worker's), where its policies
     take the fine moves; the default for an env without them, where it is never used."""
@@ -458,13 +477,7 @@ class DQNPolicy:
         self.num_actions = self.q_network.num_actions
         self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
         self.back_when_close = back_when_close(env)
-        self.stay_guard = self.num_actions > len(DIRECTIONS) and stay_needs_success(env)
-        if self.stay_guard:
-            if not directions_option(env, "with_mask_stats"):
-                raise ValueError("stay_needs_success judges success from the mask stats: make the env with_mask_stats")
-            self.success_rule = tuple(
-                float(directions_option(env, k)) for k in ("success_fraction", "success_center_tol")
-            )
+        self.stay_rule = stay_rule(env, self.num_actions)
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
             self.num_actions if self.with_last_action else 0
         )
@@ -491,8 +504,8 @@ class DQNPolicy:
             q = self.q_network(torch.as_tensor(self.state(obs)))
         if self.avoid_refused:
             q = rule_out_refused(q, info_flags(info, "refused", self.num_envs), self.last_action)
-        if self.stay_guard:
-            q[torch.as_tensor(~looks_in_success(box_array(obs), *self.success_rule)), STAY_INDEX] = -torch.inf
+        if self.stay_rule:
+            q = rule_out_stay(q, box_array(obs), self.stay_rule)
         action = q.argmax(-1).numpy().astype(np.int64)
         if self.back_when_close:  # on a box seen now: a held one does not change as the camera steps back
             close = too_close(box_array(obs), self.back_when_close) & ~info_flags(info, "box_held", self.num_envs)
@@ -509,7 +522,8 @@ class MemoryPolicy:
     its previous action are reset by `reset` (an episode's start) and carried across `act` calls. The env
     must give the box with the camera's commanded position (`EnvConfig(with_ee_pos=True)`: a checkpoint
     trained so sets it) and take the agent's actions; like `DQNPolicy`, in an env with the fine moves it takes
-    them near success."""
+    them near success, and where the env says so (`EnvConfig.stay_needs_success`) it takes `stay` only where the
+    box's mask stats show success (`rule_out_stay`; docs/task.md#occluders)."""
 
     def __init__(self, env, checkpoint: str | None = None, seed: int = 0, agent=None, sample: bool = False):
         if (checkpoint is None) == (agent is None):
@@ -529,6 +543,7 @@ class MemoryPolicy:
                 f"the memory agent takes {self.agent.input_dim} inputs, the env's box state gives "
                 f"{box_dim + 1 + self.num_actions}: train and act with the same with_mask_stats and with_presence"
             )
+        self.stay_rule = stay_rule(env, self.num_actions)
         self.sample = sample
         self.generator = torch.Generator().manual_seed(seed)
         self.state = self.agent.initial_state(self.num_envs)
@@ -543,6 +558,8 @@ class MemoryPolicy:
         with torch.no_grad():
             logits, _, self.state = self.agent(x, self.state, torch.zeros(1, self.num_envs))
         logits = logits[0]
+        if self.stay_rule:
+            logits = rule_out_stay(logits, box_array(obs), self.stay_rule)
         if self.sample:
             action = torch.multinomial(torch.softmax(logits, -1), 1, generator=self.generator)[:, 0]
         else:

@@ -61,6 +61,9 @@ class Args:
     """the verifier's bars (acquire, track) of the memory agents' FCN box: 0 0 keeps their env's (the FCN's
     own); e.g. 0.97 0.9 (envs.DQN_FCN_THRESHOLDS) as the shipped DQN is deployed. Evaluations with bars are
     kept in their own files"""
+    stay_needs_success: bool = False
+    """the memory agents take `stay` only where the mask stats say success (`EnvConfig.stay_needs_success`, as
+    `search_occluded.pt` is deployed; docs/task.md#occluders); their evaluations are kept in their own files"""
     dqn_checkpoint: str = "agents/weights/dqn_hold_demo_wide.pt"
     """the DQN of the baselines (explore -> dqn, and dqn without exploration): the teacher's"""
     out_dir: str = "runs/search_seeds"
@@ -196,13 +199,15 @@ def bars_suffix(args: Args, box: str) -> str:
 
 
 def memory_path(args: Args, seed: int, box: str) -> str:
-    return os.path.join(seed_dir(args, seed), f"eval_{box}{bars_suffix(args, box)}_{args.eval_episodes}.json")
+    stay = "_stay_needs_success" if args.stay_needs_success else ""
+    return os.path.join(seed_dir(args, seed), f"eval_{box}{bars_suffix(args, box)}{stay}_{args.eval_episodes}.json")
 
 
 def evaluate_seed(args: Args, seed: int, box: str) -> dict:
     checkpoint = os.path.join(seed_dir(args, seed), "agent.pt")
     thresholds = args.fcn_thresholds if barred(args, box) else None
     config = eval_config(checkpoint_env_config(checkpoint), args, box, thresholds)
+    config = config.replace(stay_needs_success=config.stay_needs_success or args.stay_needs_success)
     return evaluate_cached(args, memory_path(args, seed, box), config, "memory", box, checkpoint=checkpoint)
 
 

@@ -56,6 +56,9 @@ class Args:
     """the side the deployed FCN segments the camera's frame at (`EnvConfig.fcn_segment_size`; 0: the network's
     training size; None: the trained env's, or with --as-dqn envs.FCN_SEGMENT_SIZE, the camera's own 128²,
     docs/control.md §17)"""
+    stay_needs_success: bool = False
+    """deploy it to take `stay` only where the box's mask stats show success (`EnvConfig.stay_needs_success`; with
+    --as-dqn it is on already where the state has the mask stats; scripts/make_search_occluded.sh)"""
     fine_near_centre: float | None = None
     """how far from the image centre the deployed policy takes the fine moves (`EnvConfig.fine_near_centre`;
     None: the trained env's, or with --as-dqn envs.DQN_FINE_NEAR_CENTRE, docs/control.md §18)"""
@@ -83,6 +86,8 @@ def ship(args: Args) -> EnvConfig:
         env = env.replace(fcn_segment_size=args.fcn_segment_size)
     if args.fine_near_centre is not None:
         env = env.replace(fine_near_centre=args.fine_near_centre)
+    if args.stay_needs_success:
+        env = env.replace(stay_needs_success=True)
     saved["config"] = {**config, "env": dataclasses.asdict(env), "trained_env": trained}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     torch.save(saved, args.out)

@@ -88,6 +88,10 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
     assert torch.load(tmp_path / "sharp.pt", weights_only=True)["config"]["env"]["fcn_segment_size"] == 128
     zone = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "zone.pt"), fine_near_centre=0.2))
     assert kept.fine_near_centre == 0.3 and zone == kept.replace(fine_near_centre=0.2)
+    guarded = ship_dqn.ship(
+        ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "guard.pt"), stay_needs_success=True)
+    )
+    assert not kept.stay_needs_success and guarded == kept.replace(stay_needs_success=True)
     as_dqn = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "as_dqn.pt"), as_dqn=True))
     acquire, track = DQN_FCN_THRESHOLDS
     assert (
@@ -175,10 +179,10 @@ def test_a_dqn_steps_back_where_the_env_says_the_box_is_too_close():
         EnvConfig(back_when_close=1.5)
 
 
-def test_a_dqn_stays_only_where_the_mask_stats_say_success_where_the_env_says_so():
-    """With `stay_needs_success` (the deployed DQNs') a DQN with `stay` takes it only where the box's mask stats show
-    a view in success by the task's bars (5% of the image, the centroid within 0.15, the box not cut); elsewhere its
-    next choice. Without it (the default) it stays wherever its network says."""
+def test_a_learned_policy_stays_only_where_the_mask_stats_say_success_where_the_env_says_so():
+    """With `stay_needs_success` (the deployed DQNs') a DQN or a memory agent with `stay` takes it only where the box's
+    mask stats show a view in success by the task's bars (5% of the image, the centroid within 0.15, the box not
+    cut); elsewhere its next choice. Without it (the default) it stays wherever its network says."""
     rows = {  # box (x, y, w, h), then the mask stats (share, dx, dy)
         "in success": [0.4, 0.4, 0.25, 0.25, 0.06, 0.02, -0.03],
         "off centre": [0.1, 0.4, 0.3, 0.3, 0.09, -0.18, 0.1],
@@ -199,6 +203,17 @@ def test_a_dqn_stays_only_where_the_mask_stats_say_success_where_the_env_says_so
         policy = make_policy("dqn", env, q_network=q_network)
         policy.reset(states[:1], {})
         actions = [int(policy.act(state[None], {})[0]) for state in states]
+        assert actions == [STAY_INDEX] + [FORWARD if guard else STAY_INDEX] * 4
+        # the memory agent too: its states are the box, the camera's position, then the mask stats
+        env = BoxState(env.env, with_ee_pos=True, with_mask_stats=True)
+        agent = RecurrentActorCritic(input_dim(7, with_mask_stats=True), 7, 8)
+        with torch.no_grad():
+            agent.actor.weight.zero_()
+            agent.actor.bias[:] = torch.tensor([0.0, 0, 0.5, 0, 0, 0, 1])
+        policy = MemoryPolicy(env, agent=agent)
+        policy.reset(None, {})
+        with_position = torch.cat([states[:, :4], torch.tensor([[0.3, 0.0, 0.9]] * len(states)), states[:, 4:]], 1)
+        actions = [int(policy.act(state[None], {})[0]) for state in with_position]
         assert actions == [STAY_INDEX] + [FORWARD if guard else STAY_INDEX] * 4
     with pytest.raises(ValueError, match="stay_needs_success judges success from the mask stats"):
         make_policy("dqn", BoxState(mav.DiscreteDirections(task, True, stay_needs_success=True)), q_network=q_network)
