@@ -16,6 +16,7 @@ so the sweep went round: docs/control.md §7).
 
     python baselines/box_failures.py --episodes 50 --env.fcn-acquire-threshold 0.97 --env.fcn-track-threshold 0.5
     python baselines/box_failures.py --episodes 50 --checkpoint agents/weights/dqn.pt
+    python baselines/box_failures.py --episodes 50 --look-over --env.occluders 2
 """
 
 from __future__ import annotations
@@ -54,13 +55,16 @@ class Args:
     the deployed one); the reference is the same with the ground-truth box"""
     checkpoint: str = ""
     """a DQN checkpoint: the policy is the exploration, then this DQN (default: the scripted servo)"""
+    look_over: bool = False
+    """on scenes with --env.occluders: the sweep first looks over the panels (and the servo approaches from above)"""
 
 
 def make(env, args: Args):
     """The policy compared: the servo, or the exploration handing over to the DQN of `args.checkpoint`."""
+    look_over = {"look_over": True} if args.look_over else {}
     if args.checkpoint:
-        return make_policy("explore", env, then="dqn", checkpoint=args.checkpoint)
-    return make_policy("servo", env)
+        return make_policy("explore", env, then="dqn", checkpoint=args.checkpoint, **look_over)
+    return make_policy("servo", env, **look_over)
 
 
 def box_steps(env, policy, seed: int) -> tuple[float, list[dict]]:
