@@ -107,7 +107,7 @@ class DiscreteDirections(gym.ActionWrapper):
     steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
     `fine_near_centre` is where policies take the fine moves (`agents.policies.near_target`): it is kept here,
     with the moves, so that a policy reads it from the env it acts in (`agents.policies.fine_near_centre`), as
-    it reads `back_when_close` (`agents.policies.too_close`) and `stay_needs_success` (`agents.policies.DQNPolicy`).
+    it reads `back_when_close` (`agents.policies.too_close`) and `stay_needs_success` (`agents.policies.stay_rule`).
     """
 
     def __init__(

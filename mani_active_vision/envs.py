@@ -140,11 +140,12 @@ class EnvConfig:
     held), touches the image's border and covers at least this share of the image (`agents.policies.too_close`); the
     shipped DQNs are deployed at DQN_BACK_WHEN_CLOSE (docs/control.md §19–20)"""
     stay_needs_success: bool = False
-    """a DQN policy with `stay` takes it only where the box source's mask stats say the view is in success (its
-    share of the image at least success_fraction, its centroid within success_center_tol of the centre, its box
-    not cut by the border); elsewhere it takes its best move. A stay leaves the state as it was, so a greedy
-    network that stays off success stays to the episode's end. Needs with_mask_stats where stay_action is set;
-    the shipped DQNs are deployed with it (docs/control.md §21)"""
+    """a learned policy with `stay` (the DQN, the memory agent) takes it only where the box source's mask stats say
+    the view is in success (its share of the image at least success_fraction, its centroid within
+    success_center_tol of the centre, its box not cut by the border); elsewhere it takes its best move. A stay
+    leaves the state as it was, so a greedy network that stays off success stays to the episode's end. Needs
+    with_mask_stats where stay_action is set; the shipped DQNs and search_occluded.pt are deployed with it
+    (`agents.policies.stay_rule`; docs/control.md §21)"""
 
     def __post_init__(self):
         if self.box_source not in BOX_SOURCE_CHOICES:
