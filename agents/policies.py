@@ -63,12 +63,17 @@ def near_target(box: np.ndarray, centre: float = FINE_NEAR_CENTRE) -> np.ndarray
     return (area >= NEAR_AREA[0]) & (area <= NEAR_AREA[1]) & centred
 
 
-def too_close(box: np.ndarray, area: float) -> np.ndarray:
-    """(N,) bool: the boxes (N, 4+) that touch the image's border (within `BORDER`) and cover at least `area` of
-    the image: the target pushed too close and cut, where a DQN steps back (`EnvConfig.back_when_close`; 0: never)."""
+def cut_by_border(box: np.ndarray) -> np.ndarray:
+    """(N,) bool: the boxes (N, 4+) whose edge touches the image's border (within `BORDER`)."""
     x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
-    cut = (x <= BORDER) | (y <= BORDER) | (x + w >= 1 - BORDER) | (y + h >= 1 - BORDER)
-    return (area > 0) & (w > 0) & cut & (w * h >= area)
+    return (x <= BORDER) | (y <= BORDER) | (x + w >= 1 - BORDER) | (y + h >= 1 - BORDER)
+
+
+def too_close(box: np.ndarray, area: float) -> np.ndarray:
+    """(N,) bool: the boxes (N, 4+) that touch the image's border (`cut_by_border`) and cover at least `area` of
+    the image: the target pushed too close and cut, where a DQN steps back (`EnvConfig.back_when_close`; 0: never)."""
+    w, h = box[:, 2], box[:, 3]
+    return (area > 0) & (w > 0) & cut_by_border(box) & (w * h >= area)
 
 
 def looks_in_success(box: np.ndarray, success_fraction: float, center_tol: float) -> np.ndarray:
@@ -76,10 +81,8 @@ def looks_in_success(box: np.ndarray, success_fraction: float, center_tol: float
     show a view in success as the task judges one on the true mask: the mask covers at least `success_fraction`
     of the image, its centroid lies within `center_tol` (of the width) of the centre, its box is not cut by the
     border (`EnvConfig.stay_needs_success`)."""
-    x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
     share, dx, dy = box[:, -3], box[:, -2], box[:, -1]
-    cut = (x <= BORDER) | (y <= BORDER) | (x + w >= 1 - BORDER) | (y + h >= 1 - BORDER)
-    return (w > 0) & ~cut & (share >= success_fraction) & (np.hypot(dx, dy) <= center_tol)
+    return (box[:, 2] > 0) & ~cut_by_border(box) & (share >= success_fraction) & (np.hypot(dx, dy) <= center_tol)
 
 
 def directions_option(env, name: str):
