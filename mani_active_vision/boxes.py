@@ -1,4 +1,8 @@
-"""Masks to boxes and the target statistics that reward and success are made of (batched, torch)."""
+"""Masks to boxes and the target statistics that reward and success are made of (batched, torch).
+
+Every env step computes them on one small mask; on the CPU that is done in numpy, where torch's overhead per
+operation was most of their time (docs/speed.md), with the same results bit for bit (tested); other devices
+keep the batched torch code."""
 
 from __future__ import annotations
 
@@ -16,6 +20,13 @@ def mask_to_box(mask: torch.Tensor) -> torch.Tensor:
     """
     if mask.ndim != 3 or mask.dtype != torch.bool:
         raise ValueError(f"mask must be a bool tensor (N, H, W), got {tuple(mask.shape)} {mask.dtype}")
+    if mask.device.type == "cpu":
+        return torch.from_numpy(_box_numpy(mask.numpy()))
+    return _box_torch(mask)
+
+
+def _box_torch(mask: torch.Tensor) -> torch.Tensor:
+    """`mask_to_box` in batched torch (any device)."""
     n, h, w = mask.shape
     rows, cols = mask.any(2), mask.any(1)
     row_idx = torch.arange(h, device=mask.device)
@@ -26,6 +37,17 @@ def mask_to_box(mask: torch.Tensor) -> torch.Tensor:
     right = torch.where(cols, col_idx, -1).amax(1)
     box = torch.stack([left / w, top / h, (right - left + 1) / w, (bottom - top + 1) / h], -1).float()
     return torch.where(rows.any(1)[:, None], box, torch.zeros_like(box))
+
+
+def _box_numpy(mask: np.ndarray, rows: np.ndarray | None = None, cols: np.ndarray | None = None) -> np.ndarray:
+    """`mask_to_box` of a numpy bool mask (N, H, W), from its rows and columns with a pixel if given."""
+    n, h, w = mask.shape
+    rows = mask.any(2) if rows is None else rows
+    cols = mask.any(1) if cols is None else cols
+    top, left = rows.argmax(1), cols.argmax(1)
+    bottom, right = h - 1 - rows[:, ::-1].argmax(1), w - 1 - cols[:, ::-1].argmax(1)
+    box = np.stack([left / w, top / h, (right - left + 1) / w, (bottom - top + 1) / h], -1).astype(np.float32)
+    return box * rows.any(1)[:, None]
 
 
 def largest_component(mask: torch.Tensor, min_pixels: int = 1) -> torch.Tensor:
@@ -46,12 +68,32 @@ def largest_component(mask: torch.Tensor, min_pixels: int = 1) -> torch.Tensor:
 
 def centroid(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Each mask's pixel count and its centroid (x, y) in pixels (pixel centres at +0.5; 0 for an empty mask)."""
+    if mask.device.type == "cpu":
+        return tuple(torch.from_numpy(x) for x in _centroid_numpy(mask.numpy()))
+    return _centroid_torch(mask)
+
+
+def _centroid_torch(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`centroid` in batched torch (any device)."""
     n, h, w = mask.shape
     area = mask.sum((1, 2))
     ys = torch.arange(h, device=mask.device, dtype=torch.float32) + 0.5
     xs = torch.arange(w, device=mask.device, dtype=torch.float32) + 0.5
     safe_area = area.clamp(min=1).float()
     return area, (mask.sum(1).float() * xs).sum(1) / safe_area, (mask.sum(2).float() * ys).sum(1) / safe_area
+
+
+def _centroid_numpy(mask: np.ndarray, rows: np.ndarray | None = None, cols: np.ndarray | None = None) -> tuple:
+    """`centroid` of a numpy bool mask (N, H, W), from its pixel counts per row (N, H) and column (N, W) if given.
+    (The sums are of whole and half numbers below 2^24: exact in float32 in any order, so equal to torch's.)"""
+    n, h, w = mask.shape
+    rows = mask.sum(2) if rows is None else rows
+    cols = mask.sum(1) if cols is None else cols
+    area = rows.sum(1)
+    safe_area = np.maximum(area, 1).astype(np.float32)
+    xs = np.arange(w, dtype=np.float32) + np.float32(0.5)
+    ys = np.arange(h, dtype=np.float32) + np.float32(0.5)
+    return area, (cols.astype(np.float32) * xs).sum(1) / safe_area, (rows.astype(np.float32) * ys).sum(1) / safe_area
 
 
 def mask_stats(mask: torch.Tensor) -> torch.Tensor:
@@ -70,17 +112,41 @@ def target_stats(mask: torch.Tensor) -> dict[str, torch.Tensor]:
     touches_border: a target pixel lies on the image border; center_offset: distance of the mask's
     centroid from the image centre, as a fraction of the image width (inf when not visible).
     """
+    if mask.device.type == "cpu":
+        return _target_stats_numpy(mask.numpy())
+    return _target_stats_torch(mask)
+
+
+def _target_stats_torch(mask: torch.Tensor) -> dict[str, torch.Tensor]:
+    """`target_stats` in batched torch (any device)."""
     n, h, w = mask.shape
-    area, cx, cy = centroid(mask)
+    area, cx, cy = _centroid_torch(mask)
     visible = area > 0
     border = mask[:, 0, :].any(1) | mask[:, -1, :].any(1) | mask[:, :, 0].any(1) | mask[:, :, -1].any(1)
     offset = torch.sqrt((cx - w / 2) ** 2 + (cy - h / 2) ** 2) / w
     return dict(
         target_fraction=area.float() / (h * w),
         target_visible=visible,
-        target_bbox=mask_to_box(mask),
+        target_bbox=_box_torch(mask),
         touches_border=border,
         center_offset=torch.where(visible, offset, torch.full_like(offset, float("inf"))),
+    )
+
+
+def _target_stats_numpy(mask: np.ndarray) -> dict[str, torch.Tensor]:
+    """`target_stats` of a numpy bool mask (N, H, W): one count per row and column, everything from them."""
+    n, h, w = mask.shape
+    rows, cols = mask.sum(2), mask.sum(1)
+    area, cx, cy = _centroid_numpy(mask, rows, cols)
+    visible = area > 0
+    border = (rows[:, 0] > 0) | (rows[:, -1] > 0) | (cols[:, 0] > 0) | (cols[:, -1] > 0)
+    offset = torch.sqrt(torch.from_numpy((cx - w / 2) ** 2 + (cy - h / 2) ** 2)) / w  # torch's sqrt, as on a device
+    return dict(
+        target_fraction=torch.from_numpy(area.astype(np.float32) / (h * w)),
+        target_visible=torch.from_numpy(visible),
+        target_bbox=torch.from_numpy(_box_numpy(mask, rows > 0, cols > 0)),
+        touches_border=torch.from_numpy(border),
+        center_offset=torch.where(torch.from_numpy(visible), offset, torch.tensor(float("inf"))),
     )
 
 

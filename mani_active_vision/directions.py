@@ -62,40 +62,40 @@ def direction_deltas(
     fine moves (`FINE`) are `fine_step` long.
 
     Orbit steps are arcs of length `step` at the position's radius and height, so that a left step and a
-    right step return exactly; forward/backward follow the viewing axis at the position's azimuth."""
-    moves = _moves(pos, step, pitch)
-    if any(name in FINE for name in names):
-        if fine_step <= 0:
-            raise ValueError(f"the fine moves {FINE} need fine_step > 0, got {fine_step}")
-        moves.update({f"{name}_fine": move for name, move in _moves(pos, fine_step, pitch).items() if name != STAY})
-    unknown = [n for n in names if n not in moves]
+    right step return exactly; forward/backward follow the viewing axis at the position's azimuth. Only the
+    named moves are computed: an env's step asks for one (its small tensor operations are most of the cost)."""
+    unknown = [n for n in names if n not in (*DIRECTIONS, STAY, *FINE)]
     if unknown:
-        raise ValueError(f"unknown action names {unknown}: valid are {tuple(moves)}")
-    return torch.stack([moves[name] for name in names], 1)
+        raise ValueError(f"unknown action names {unknown}: valid are {(*DIRECTIONS, STAY, *FINE)}")
+    if any(name in FINE for name in names) and fine_step <= 0:
+        raise ValueError(f"the fine moves {FINE} need fine_step > 0, got {fine_step}")
+    frame = _Frame(pos, pitch)
+    moves = [frame.move(name[: -len("_fine")], fine_step) if name in FINE else frame.move(name, step) for name in names]
+    return torch.stack(moves, 1)
 
 
-def _moves(pos: torch.Tensor, step: float, pitch: float) -> dict[str, torch.Tensor]:
-    """Each of the six directions' (and `stay`'s) Cartesian step (N, 3) of length `step`."""
-    radius = torch.linalg.norm(pos[:, :2], dim=-1).clamp(min=1e-6)
-    azimuth = torch.atan2(pos[:, 1], pos[:, 0])
+class _Frame:
+    """The orbit frame at commanded positions `pos` (N, 3): each direction's (and `stay`'s) Cartesian step."""
 
-    def orbit(turn):  # left = counter-clockwise seen from above
-        return (
-            torch.stack([radius * torch.cos(azimuth + turn), radius * torch.sin(azimuth + turn), pos[:, 2]], -1) - pos
-        )
+    def __init__(self, pos: torch.Tensor, pitch: float):
+        self.pos, self.pitch = pos, pitch
+        self.radius = torch.linalg.norm(pos[:, :2], dim=-1).clamp(min=1e-6)
+        self.azimuth = torch.atan2(pos[:, 1], pos[:, 0])
 
-    forward = step * camera_forward(azimuth, pitch)
-    up = torch.zeros_like(pos)
-    up[:, 2] = step
-    return dict(
-        left=orbit(step / radius),
-        right=orbit(-step / radius),
-        forward=forward,
-        backward=-forward,
-        up=up,
-        down=-up,
-        stay=torch.zeros_like(pos),
-    )
+    def move(self, name: str, step: float) -> torch.Tensor:
+        """The step (N, 3) of direction `name` (or `stay`), `step` long."""
+        pos = self.pos
+        if name in ("left", "right"):  # left = counter-clockwise seen from above
+            turn = self.azimuth + (step if name == "left" else -step) / self.radius
+            return torch.stack([self.radius * torch.cos(turn), self.radius * torch.sin(turn), pos[:, 2]], -1) - pos
+        if name in ("forward", "backward"):
+            forward = step * camera_forward(self.azimuth, self.pitch)
+            return forward if name == "forward" else -forward
+        up = torch.zeros_like(pos)
+        if name == STAY:
+            return up
+        up[:, 2] = step
+        return up if name == "up" else -up
 
 
 class DiscreteDirections(gym.ActionWrapper):
@@ -155,10 +155,10 @@ class DiscreteDirections(gym.ActionWrapper):
     def action(self, action):
         base = self.env.unwrapped
         controller = base.agent.controller
-        idx = self._indices(action).to(base.device)
-        pitch = controller.config.pitch
-        deltas = direction_deltas(controller.target_pos, base.step_size, pitch, self.names, self.fine_step)
-        delta = deltas[torch.arange(len(idx)), idx]
+        used, column = torch.unique(self._indices(action), return_inverse=True)  # only the moves asked for
+        names = tuple(self.names[i] for i in used.tolist())
+        deltas = direction_deltas(controller.target_pos, base.step_size, controller.config.pitch, names, self.fine_step)
+        delta = deltas[torch.arange(len(column)), column.to(base.device)]
         if self._batched:
             return delta
         return delta[0].cpu().numpy().astype(np.float32)

@@ -124,6 +124,17 @@ def test_the_planners_steps_are_the_envs_steps_and_reverse_exactly():
         direction_deltas(pos, 0.05, 1.0, ("sideways",))
 
 
+def test_the_moves_asked_for_alone_are_those_of_all_moves_bit_for_bit():
+    names = action_names(stay_action=True, fine_actions=True)
+    pos = torch.tensor([[0.5, 0.1, 0.6], [-0.2, 0.6, 0.3], [0.3, -0.4, 0.9]])
+    every = direction_deltas(pos, 0.1, 1.0, names, fine_step=0.025)
+    for k, name in enumerate(names):  # what an env's step computes: only the move taken
+        assert torch.equal(direction_deltas(pos, 0.1, 1.0, (name,), fine_step=0.025)[:, 0], every[:, k]), name
+    assert torch.equal(every[:, names.index(STAY)], torch.zeros(3, 3))
+    with pytest.raises(ValueError, match="need fine_step > 0"):
+        direction_deltas(pos, 0.1, 1.0, ("left_fine",))
+
+
 def test_learner_reward_pays_the_bonus_once_then_time_in_success():
     args = dqn.Args(success_bonus=1.0, hold_reward=0.2, step_cost=0.02, refusal_penalty=0.1)
     reward = dqn.LearnerReward(args, success_fraction=0.05)

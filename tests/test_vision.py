@@ -484,6 +484,27 @@ def test_boxes_and_metrics_of_hand_made_masks():
     assert metrics["box_error"] == pytest.approx(float((2 / 8 + 2 / 8) / 4 / 2))
 
 
+def test_boxes_and_target_stats_on_the_cpu_are_the_batched_torch_ones_bit_for_bit():
+    boxes = mav.boxes
+    rng = np.random.default_rng(0)
+    for i in range(60):
+        n, (h, w) = 1 + i % 3, [(128, 128), (64, 64), (40, 72)][i % 3]
+        mask = np.zeros((n, h, w), dtype=bool)  # boxes, some cut by the border, some images empty
+        for k in range(n):
+            y0, x0 = rng.integers(-8, h), rng.integers(-8, w)
+            mask[k, max(y0, 0) : max(y0 + rng.integers(0, h), 0), max(x0, 0) : max(x0 + rng.integers(0, w), 0)] = True
+        if i % 4 == 0:
+            mask |= rng.random(mask.shape) < 0.01  # scattered pixels
+        mask = torch.from_numpy(mask)
+        numpy_path, torch_path = boxes.target_stats(mask), boxes._target_stats_torch(mask)
+        for key, value in torch_path.items():
+            assert numpy_path[key].dtype == value.dtype and torch.equal(numpy_path[key], value), key
+        assert torch.equal(boxes.mask_to_box(mask), boxes._box_torch(mask))
+        for a, b in zip(boxes.centroid(mask), boxes._centroid_torch(mask)):
+            assert a.dtype == b.dtype and torch.equal(a, b)
+    assert torch.isinf(boxes.target_stats(torch.zeros(1, 8, 8, dtype=torch.bool))["center_offset"]).all()
+
+
 def test_largest_component_keeps_the_biggest_region_or_nothing():
     mask = torch.zeros(3, 8, 8, dtype=torch.bool)
     mask[0, 1:4, 1:4] = True  # 9 pixels
