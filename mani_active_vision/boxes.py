@@ -100,7 +100,17 @@ def mask_stats(mask: torch.Tensor) -> torch.Tensor:
     """(N, 3): each mask's share of the image and its centroid's offset from the image centre (dx, dy, as
     fractions of the width, as `target_stats`' center_offset is); zeros for an empty mask."""
     n, h, w = mask.shape
-    area, cx, cy = centroid(mask)
+    if mask.device.type == "cpu":
+        area, cx, cy = _centroid_numpy(mask.numpy())
+        offset = np.stack([(cx - w / 2) / w, (cy - h / 2) / w], -1) * (area > 0)[:, None]
+        return torch.from_numpy(np.concatenate([(area.astype(np.float32) / (h * w))[:, None], offset], -1))
+    return _mask_stats_torch(mask)
+
+
+def _mask_stats_torch(mask: torch.Tensor) -> torch.Tensor:
+    """`mask_stats` in batched torch (any device)."""
+    n, h, w = mask.shape
+    area, cx, cy = _centroid_torch(mask)
     offset = torch.stack([(cx - w / 2) / w, (cy - h / 2) / w], -1) * (area > 0)[:, None]
     return torch.cat([(area.float() / (h * w))[:, None], offset], -1)
 

@@ -500,6 +500,7 @@ def test_boxes_and_target_stats_on_the_cpu_are_the_batched_torch_ones_bit_for_bi
         for key, value in torch_path.items():
             assert numpy_path[key].dtype == value.dtype and torch.equal(numpy_path[key], value), key
         assert torch.equal(boxes.mask_to_box(mask), boxes._box_torch(mask))
+        assert torch.equal(boxes.mask_stats(mask), boxes._mask_stats_torch(mask))
         for a, b in zip(boxes.centroid(mask), boxes._centroid_torch(mask)):
             assert a.dtype == b.dtype and torch.equal(a, b)
     assert torch.isinf(boxes.target_stats(torch.zeros(1, 8, 8, dtype=torch.bool))["center_offset"]).all()
