@@ -9,7 +9,8 @@
 # train objects, 2 worker processes, 20,000 env steps, ~7 min) for each seed, evaluate every seed and the
 # baselines on 50 held-out episodes (unseen objects, FCN box as deployed and ground-truth box), draw the learning
 # curves and the camera's azimuth, then ship seed 0 (chosen before training, not the best) as deployed (FCN box,
-# unseen objects: baselines/ship_dqn.py) and evaluate it. Finished runs and evaluations are kept under $OUT
+# unseen objects, `stay` only where the mask stats say success: baselines/ship_dqn.py) and evaluate it. The seeds
+# are evaluated as deployed too (search_seeds.py --stay-needs-success: their own evaluation files). Finished runs and evaluations are kept under $OUT
 # (runs/search_turn) and skipped on a rerun. About 60 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,8 +30,9 @@ TEACHER=(--train.teacher agents/weights/dqn_ensemble.pt --dqn-checkpoint agents/
 ON_FCN_BOX=(--train.env.box-source fcn --train.env.image-size "$SIZE" --train.env.box-hold-steps "$HOLD"
     --train.env.fcn-acquire-threshold "$ACQUIRE" --train.env.fcn-track-threshold "$TRACK" --fcn-thresholds "$ACQUIRE" "$TRACK")
 # shellcheck disable=SC2086
-$PY baselines/search_seeds.py --seeds $SEEDS --total-steps "$STEPS" "${TEACHER[@]}" "${ON_FCN_BOX[@]}" --out-dir "$OUT" "$@"
+$PY baselines/search_seeds.py --seeds $SEEDS --total-steps "$STEPS" "${TEACHER[@]}" "${ON_FCN_BOX[@]}" --out-dir "$OUT" \
+    --stay-needs-success "$@"
 $PY baselines/ship_dqn.py --checkpoint "$OUT/seed$SHIP_SEED/agent.pt" --out agents/weights/search.pt \
-    --fcn-acquire-threshold "$ACQUIRE" --fcn-track-threshold "$TRACK"
+    --fcn-acquire-threshold "$ACQUIRE" --fcn-track-threshold "$TRACK" --stay-needs-success
 $PY baselines/evaluate.py --policy memory --checkpoint agents/weights/search.pt --episodes 50 \
     --json outputs/search_shipped.json
