@@ -158,7 +158,7 @@ class DiscreteDirections(gym.ActionWrapper):
         used, column = torch.unique(self._indices(action), return_inverse=True)  # only the moves asked for
         names = tuple(self.names[i] for i in used.tolist())
         deltas = direction_deltas(controller.target_pos, base.step_size, controller.config.pitch, names, self.fine_step)
-        delta = deltas[torch.arange(len(column)), column.to(base.device)]
+        delta = deltas[torch.arange(len(column), device=base.device), column.to(base.device)]
         if self._batched:
             return delta
         return delta[0].cpu().numpy().astype(np.float32)
