@@ -10,8 +10,8 @@
 # baselines on 50 held-out episodes (unseen objects, FCN box as deployed and ground-truth box), draw the learning
 # curves and the camera's azimuth, then ship seed 0 (chosen before training, not the best) as deployed (FCN box,
 # unseen objects, `stay` only where the mask stats say success: baselines/ship_dqn.py) and evaluate it. The seeds
-# are evaluated as deployed too (search_seeds.py --stay-needs-success: their own evaluation files). Finished runs and evaluations are kept under $OUT
-# (runs/search_turn) and skipped on a rerun. About 60 min on 2 cores.
+# are evaluated as deployed too (search_seeds.py --stay-needs-success: their own evaluation files). Finished runs
+# and evaluations are kept under $OUT (runs/search_turn) and skipped on a rerun. About 60 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
