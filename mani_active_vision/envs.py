@@ -144,7 +144,7 @@ class EnvConfig:
     the view is in success (its share of the image at least success_fraction, its centroid within
     success_center_tol of the centre, its box not cut by the border); elsewhere it takes its best move. A stay
     leaves the state as it was, so a greedy network that stays off success stays to the episode's end. Needs
-    with_mask_stats where stay_action is set; the shipped DQNs and search_occluded.pt are deployed with it
+    with_mask_stats where stay_action is set; every shipped agent with `stay` is deployed with it
     (`agents.policies.stay_rule`; docs/control.md §21)"""
 
     def __post_init__(self):
