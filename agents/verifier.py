@@ -60,10 +60,14 @@ class CandidateVerifier(nn.Module):
         return self.head(self.compare(torch.cat([t, c, t * c, (t - c).abs()], 1)))[:, 0]
 
 
-def square_crops(images: torch.Tensor, boxes: torch.Tensor, size: int, margin: float = MARGIN) -> torch.Tensor:
+def square_crops(
+    images: torch.Tensor, boxes: torch.Tensor, size: int, margin: float = MARGIN, image: torch.Tensor | None = None
+) -> torch.Tensor:
     """Crops (M, C, size, size) of float images (M, C, H, W) around pixel boxes (M, 4) = (x0, y0, x1, y1),
     edges exclusive: a square of side `margin` × the longer side (at least MIN_SIDE), centred on the box,
-    bilinear; outside the image is 0 (grey 128 after `normalize_images`, the target image's background)."""
+    bilinear; outside the image is 0 (grey 128 after `normalize_images`, the target image's background).
+    With `image` (M,), box k is in images[image[k]] (images (N, C, H, W)): one image's crops are then sampled
+    in one pass, without a copy of the image per box (an episode's frame: the same crops bit for bit)."""
     height, width = images.shape[2:]
     centre = (boxes[:, :2] + boxes[:, 2:]) / 2
     side = ((boxes[:, 2:] - boxes[:, :2]).amax(1) * margin).clamp_min(MIN_SIDE)
@@ -71,6 +75,11 @@ def square_crops(images: torch.Tensor, boxes: torch.Tensor, size: int, margin: f
     xs = (centre[:, :1] + side[:, None] * t) / width * 2 - 1  # (M, size) in grid_sample's [-1, 1]
     ys = (centre[:, 1:] + side[:, None] * t) / height * 2 - 1
     grid = torch.stack([xs[:, None, :].expand(-1, size, -1), ys[:, :, None].expand(-1, -1, size)], -1)
+    if image is not None and len(images) == 1:  # every box's grid stacked into one tall grid over the one image
+        crops = F.grid_sample(images, grid.reshape(1, -1, size, 2), align_corners=False, padding_mode="zeros")
+        return crops.view(images.shape[1], len(boxes), size, size).transpose(0, 1).contiguous()
+    if image is not None:
+        images = images[image]
     return F.grid_sample(images, grid, align_corners=False, padding_mode="zeros")
 
 
@@ -90,13 +99,15 @@ def mask_box(mask: torch.Tensor) -> torch.Tensor:
     return torch.stack([x0, y0, x1, y1], 1).float()
 
 
-def regions(mask: np.ndarray, max_regions: int) -> tuple[np.ndarray, list[int]]:
-    """(8-connected labels (H, W), the labels of the `max_regions` largest regions, largest first)."""
+def regions(mask: np.ndarray, max_regions: int) -> tuple[np.ndarray, list[int], list[int]]:
+    """(8-connected labels (H, W), the labels of the `max_regions` largest regions, largest first, their pixel
+    counts)."""
     labels, count = scipy.ndimage.label(mask, structure=np.ones((3, 3)))
     if not count:
-        return labels, []
+        return labels, [], []
     sizes = np.bincount(labels.ravel())[1:]
-    return labels, [int(k) + 1 for k in np.argsort(-sizes, kind="stable")[:max_regions]]
+    largest = np.argsort(-sizes, kind="stable")[:max_regions]
+    return labels, (largest + 1).tolist(), sizes[largest].tolist()
 
 
 def region_boxes(labels: np.ndarray, ids: list[int]) -> torch.Tensor:
@@ -122,17 +133,16 @@ def candidate_crops(scene: torch.Tensor, masks: np.ndarray, max_regions: int, cr
     labels per image, largest first], boxes (M, 4) the regions' pixel boxes, sizes (M,) their pixel counts)."""
     labels, ids, boxes, image, sizes = [], [], [], [], []
     for i, mask in enumerate(masks):
-        image_labels, image_ids = regions(mask, max_regions)
+        image_labels, image_ids, image_sizes = regions(mask, max_regions)
         labels.append(image_labels)
         ids.append(image_ids)
         boxes.append(region_boxes(image_labels, image_ids))
         image += [i] * len(image_ids)
-        if image_ids:
-            sizes += np.bincount(image_labels.ravel())[image_ids].tolist()
+        sizes += image_sizes
     image = torch.tensor(image, dtype=torch.long)
     boxes = torch.cat(boxes).to(scene.device)
     if len(image):
-        scene_crops = square_crops(scene[image], boxes, crop)
+        scene_crops = square_crops(scene, boxes, crop, image=image.to(scene.device))
     else:  # no region anywhere (~40% of an episode's frames): no sampling to set up
         scene_crops = scene.new_zeros((0, scene.shape[1], crop, crop))
     sizes = torch.tensor(sizes, dtype=torch.long)

@@ -45,13 +45,27 @@ def test_square_crops_frame_the_box_whatever_its_size_and_place():
     assert outside[0, 0, :4, :4].abs().max() < 1e-6 and outside[0, 0, -4:, -4:].min() > 0.99  # off the image: 0
 
 
+def test_crops_of_one_image_in_one_pass_are_those_of_a_copy_per_box_bit_for_bit():
+    """`square_crops(..., image=)` samples one image's boxes in one tall grid, without a copy of the image per box;
+    several images go through the copy per box."""
+    generator = torch.Generator().manual_seed(0)
+    for num_images, num_boxes in ((1, 1), (1, 4), (3, 5)):
+        images = torch.rand(num_images, 3, 128, 128, generator=generator) - 0.5
+        corner = torch.rand(num_boxes, 2, generator=generator) * 110
+        boxes = torch.cat([corner, corner + 1 + torch.rand(num_boxes, 2, generator=generator) * 60], 1).floor()
+        image = torch.randint(num_images, (num_boxes,), generator=generator)
+        one_pass = square_crops(images, boxes, 32, image=image)
+        assert one_pass.shape == (num_boxes, 3, 32, 32) and one_pass.is_contiguous()
+        assert torch.equal(one_pass, square_crops(images[image], boxes, 32))
+
+
 def test_regions_and_their_boxes_largest_first():
     mask = np.zeros((32, 32), bool)
     mask[2:4, 2:4] = True  # 4 px
     mask[10:20, 5:8] = True  # 30 px
     mask[25:30, 25:30] = True  # 25 px
-    labels, ids = regions(mask, max_regions=2)
-    assert [int((labels == k).sum()) for k in ids] == [30, 25]
+    labels, ids, sizes = regions(mask, max_regions=2)
+    assert [int((labels == k).sum()) for k in ids] == sizes == [30, 25]
     assert region_boxes(labels, ids).tolist() == [[5, 10, 8, 20], [25, 25, 30, 30]]
     assert regions(np.zeros((8, 8), bool), 4)[1] == []
     empty_and_square = torch.zeros(2, 16, 16, dtype=torch.bool)
