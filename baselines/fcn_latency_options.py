@@ -131,13 +131,13 @@ def verifier_parts(model, scene: np.ndarray, target: np.ndarray, mask: torch.Ten
         f"verifier: candidate_crops, {len(boxes)} region(s) (scipy label, boxes, crops)": lambda: candidate_crops(
             normalized, masks, model.config.verifier_regions, crop
         ),
-        "verifier: square_crops alone (grid_sample)": lambda: square_crops(normalized[image], boxes, crop),
+        "verifier: square_crops alone (grid_sample)": lambda: square_crops(normalized, boxes, crop, image=image),
         "verifier: torch encoder + comparison (before)": lambda: verifier.score(encoded, verifier.encoder(crops)),
         "verifier: ONNX Runtime encoder + comparison (verifier_logits, adopted)": lambda: fcn_runtime.verifier_logits(
             model, encoded, crops, weights, True
         ),
         "verifier: square_crops + verifier_logits (adopted: crops in torch)": lambda: fcn_runtime.verifier_logits(
-            model, encoded, square_crops(normalized[image], boxes, crop), weights, True
+            model, encoded, square_crops(normalized, boxes, crop, image=image), weights, True
         ),
         "verifier: ONNX Runtime crops + encoder + comparison (crops in the graph)": lambda: torch.from_numpy(
             session.run(None, feeds)[0]
