@@ -40,6 +40,11 @@ class BoxState(gym.ObservationWrapper):
     `verifier_threshold`; `OneShotFCN.predict_with_presence`). (0, 0): every frame judged alone.
     `hold_steps`: while the mask is empty, the last box seen in the episode is given for up to this many steps
     (the mask and presence stay the source's own; `info["box_held"]` says where the box is a held one); 0: off.
+    `hold_follows_camera`: the held box moves as the camera does, as the ground truth's box would: where the box was
+    seen, its centre's ray meets the floor (`FLOOR_HEIGHT`, where the objects lie); each held step that point is
+    projected with the camera of that step (the observation's `sensor_param`), the box scaled by the ratio of the
+    depths, its centre kept within the image (a target that left the view stays at the border it left by, half in
+    view), cut to the image; the mask stats follow it (docs/control.md §25).
     """
 
     def __init__(
@@ -52,6 +57,7 @@ class BoxState(gym.ObservationWrapper):
         segmenter=None,
         thresholds: tuple[float, float] = (0.0, 0.0),
         hold_steps: int = 0,
+        hold_follows_camera: bool = False,
     ):
         super().__init__(env)
         check_thresholds(thresholds)
@@ -63,6 +69,11 @@ class BoxState(gym.ObservationWrapper):
         if needed not in env.unwrapped.obs_mode:
             raise ValueError(
                 f"BoxState(source={source!r}) needs an obs_mode with {needed}, got {env.unwrapped.obs_mode!r}"
+            )
+        if hold_follows_camera and (not hold_steps or source == "projection"):
+            raise ValueError(
+                f"hold_follows_camera moves a held box with the rendered camera: it needs hold_steps > 0 (got "
+                f"{hold_steps}) and source ground_truth or fcn (got {source!r})"
             )
         if source == "fcn" and segmenter is None:
             raise ValueError(
@@ -78,6 +89,9 @@ class BoxState(gym.ObservationWrapper):
         self.with_presence = with_presence
         self.thresholds = tuple(thresholds)
         self.hold_steps = hold_steps
+        self.hold_follows_camera = hold_follows_camera
+        self._camera: tuple | None = None  # this step's camera: (extrinsic, intrinsic) in OpenCV axes, image width
+        self._anchor: torch.Tensor | None = None  # (N, 4) float64: the held box's floor point (x, y, z) and its depth
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
         self._held_now: torch.Tensor | None = None  # (N,) bool: the latest observation's box is a held one
@@ -118,6 +132,10 @@ class BoxState(gym.ObservationWrapper):
         base = self.env.unwrapped
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
         self.last_observation = obs
+        if self.hold_follows_camera:
+            camera = obs["sensor_param"]["hand_camera"]
+            width = next(iter(obs["sensor_data"]["hand_camera"].values())).shape[-2]  # (..., H, W, C) images
+            self._camera = (*(batch(camera[k]).double().cpu() for k in ("extrinsic_cv", "intrinsic_cv")), width)
         if self.source == "projection":
             mask = base.projected_target_mask()  # the same mask the task's info came from this step
             presence = mask.flatten(1).any(1).float()
@@ -148,16 +166,61 @@ class BoxState(gym.ObservationWrapper):
         return state
 
     def _hold(self, box: torch.Tensor) -> torch.Tensor:
-        """`box` (with its mask stats), the last one seen in place of an empty one for up to `hold_steps` steps."""
+        """`box` (with its mask stats), the last one seen in place of an empty one for up to `hold_steps` steps
+        (moved with the camera where `hold_follows_camera`)."""
         seen = box[:, 2] > 0
         if self._held is None:
             self._held = torch.zeros_like(box)
             self._unseen_for = torch.zeros(len(box), dtype=torch.long, device=box.device)
+            self._anchor = torch.zeros(len(box), 4, dtype=torch.float64)
+        if self.hold_follows_camera and seen.any():
+            self._anchor = torch.where(seen[:, None].cpu(), floor_anchor(box, *self._camera), self._anchor)
         self._unseen_for = torch.where(seen, 0, self._unseen_for + 1)
         self._held = torch.where(seen[:, None], box, self._held)
         use = ~seen & (self._unseen_for <= self.hold_steps) & (self._held[:, 2] > 0)
+        held = self._held
+        if self.hold_follows_camera and use.any():
+            held, in_front = moved_box(self._held, self._anchor, *self._camera)
+            use = use & in_front.to(use.device)
         self._held_now = use
-        return torch.where(use[:, None], self._held, box)
+        return torch.where(use[:, None], held, box)
+
+
+FLOOR_HEIGHT = 0.0
+"""The floor's height (m), where the objects lie: a held box's centre is anchored where its ray meets it."""
+
+
+def floor_anchor(box: torch.Tensor, extrinsic: torch.Tensor, intrinsic: torch.Tensor, size: int) -> torch.Tensor:
+    """(N, 4) float64: where the ray through each box's centre meets the floor (x, y, z, world) and its depth in the
+    camera (OpenCV `extrinsic` (N, 3, 4) world -> camera, `intrinsic` (N, 3, 3), a `size`² image)."""
+    b = box.double().cpu()
+    pixel = torch.stack([(b[:, 0] + b[:, 2] / 2) * size, (b[:, 1] + b[:, 3] / 2) * size, torch.ones(len(b))], -1)
+    rotation, translation = extrinsic[:, :, :3], extrinsic[:, :, 3]
+    ray = (rotation.transpose(1, 2) @ torch.linalg.solve(intrinsic, pixel[..., None]))[..., 0]
+    centre = -(rotation.transpose(1, 2) @ translation[..., None])[..., 0]
+    point = centre + ((FLOOR_HEIGHT - centre[:, 2]) / ray[:, 2])[:, None] * ray
+    depth = (rotation @ point[..., None])[..., 0][:, 2] + translation[:, 2]
+    return torch.cat([point, depth[:, None]], -1)
+
+
+def moved_box(held: torch.Tensor, anchor: torch.Tensor, extrinsic, intrinsic, size: int):
+    """(the held boxes, with their mask stats, moved to where their anchors project now; (N,) bool: the anchor is in
+    front of the camera, as it was when seen). The box is scaled by the ratio of the depths; its centre is kept within the image and the
+    box cut to it; the mask's share scales with the box's area kept, its centroid moves with the centre."""
+    camera = (extrinsic[:, :, :3] @ anchor[:, :3, None])[..., 0] + extrinsic[:, :, 3]
+    depth = camera[:, 2].clamp(min=1e-3)
+    centre = ((intrinsic @ (camera / depth[:, None])[..., None])[..., 0][:, :2] / size).clamp(0, 1)
+    h = held.double().cpu()
+    scale = anchor[:, 3] / depth
+    width, height = h[:, 2] * scale, h[:, 3] * scale
+    x0, y0 = (centre[:, 0] - width / 2).clamp(0, 1), (centre[:, 1] - height / 2).clamp(0, 1)
+    x1, y1 = (centre[:, 0] + width / 2).clamp(0, 1), (centre[:, 1] + height / 2).clamp(0, 1)
+    moved = torch.stack([x0, y0, x1 - x0, y1 - y0], -1)
+    if h.shape[1] > 4:  # the mask stats: share, centroid offset
+        kept = (x1 - x0) * (y1 - y0) / (width * height).clamp(min=1e-9)
+        offset = h[:, 5:7] + centre - torch.stack([h[:, 0] + h[:, 2] / 2, h[:, 1] + h[:, 3] / 2], -1)
+        moved = torch.cat([moved, (h[:, 4] * scale**2 * kept)[:, None], offset], -1)
+    return moved.to(held), (camera[:, 2] > 0.01) & (anchor[:, 3] > 0.01)  # a ray above the horizon meets no floor
 
 
 def check_thresholds(thresholds) -> None:

@@ -110,6 +110,10 @@ class EnvConfig:
     box_hold_steps: int = 0
     """while the box source sees nothing, keep giving the last box seen in the episode for up to this many
     steps (0: off): the FCN misses a third of the target's views, mostly small or cut ones (docs/control.md)"""
+    box_hold_follows_camera: bool = False
+    """with box_hold_steps, the held box moves as the camera does (as the ground truth's box would), anchored where
+    its centre's ray met the floor, and stays at the image's border once the target has left by it; off: it stays
+    where it was last seen. The shipped DQNs are deployed with it (docs/control.md §25)"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
     with_mask_stats: bool = False
@@ -167,6 +171,11 @@ class EnvConfig:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be in [0, 1) (0: the checkpoint's)")
         if not (isinstance(self.box_hold_steps, int) and self.box_hold_steps >= 0):
             raise ValueError(f"box_hold_steps={self.box_hold_steps!r} must be an integer of at least 0 (0: off)")
+        if self.box_hold_follows_camera and not (self.box_hold_steps and self.box_source in ("ground_truth", "fcn")):
+            raise ValueError(
+                "box_hold_follows_camera moves a held box with the camera: it needs box_hold_steps > 0 (got "
+                f"{self.box_hold_steps}) and box_source ground_truth or fcn (got {self.box_source!r})"
+            )
         if not 0 <= self.fine_step_size < self.step_size:
             raise ValueError(
                 f"fine_step_size={self.fine_step_size!r} must be in [0, step_size={self.step_size}) (0: no fine moves)"
@@ -228,13 +237,15 @@ class EnvConfig:
         `DQN_FCN_THRESHOLDS`, the network segmenting at `FCN_SEGMENT_SIZE`, and the fine moves
         (`DQN_FINE_STEP_SIZE`) within `DQN_FINE_NEAR_CENTRE` of the image centre, and a step back when the box is
         cut and `DQN_BACK_WHEN_CLOSE` of the image or more, and `stay` only where the mask stats say success (where the
-        state has them to judge by; every preset with `stay` does) (docs/control.md §12, §17, §18, §19, §21)."""
+        state has them to judge by; every preset with `stay` does), and the held box moving with the camera
+        (docs/control.md §12, §17, §18, §19, §21, §25)."""
         return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
             back_when_close=DQN_BACK_WHEN_CLOSE,
             stay_needs_success=self.with_mask_stats,
+            box_hold_follows_camera=True,
         )
 
     @classmethod
@@ -268,6 +279,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         segmenter=segmenter,
         thresholds=(config.fcn_acquire_threshold, config.fcn_track_threshold),
         hold_steps=config.box_hold_steps,
+        hold_follows_camera=config.box_hold_follows_camera,
     )
 
 

@@ -26,7 +26,7 @@ from mani_active_vision.agents.fcn import (
     summarize_counts,
 )
 from mani_active_vision.agents.verifier import regions
-from mani_active_vision.box_state import BoxState
+from mani_active_vision.box_state import BoxState, floor_anchor, moved_box
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.segmentation_data import (
     SegmentationDataConfig,
@@ -598,6 +598,60 @@ def test_box_hold_keeps_the_last_box_seen_for_its_steps_and_forgets_it_at_reset(
     assert not torch.as_tensor(env.reset(seed=0)[0]).any()  # a new episode holds nothing of the last
     with pytest.raises(ValueError, match="box_hold_steps=-1 must be an integer of at least 0"):
         mav.EnvConfig(box_hold_steps=-1)
+
+
+def test_a_held_box_that_follows_the_camera_moves_as_the_ground_truths_box_does():
+    """Anchored on the floor where the box was seen and projected with the next step's camera, the box lands where
+    the ground truth's box is after that step (the real renderer, steps of every direction)."""
+    env = BoxState(
+        mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed")),
+        with_mask_stats=True,
+        hold_steps=3,
+        hold_follows_camera=True,
+    )
+    obs, _ = env.reset(seed=0)
+    compared = 0
+    for action in [0, 0, 0, 1, 1, 1, 1, 1, 2, 2, 3, 3, 4, 5, 5]:
+        before, camera = obs.clone(), env._camera
+        obs, *_ = env.step(action)
+        inside = lambda box: box[0, 2] > 0 and box[0, 0] > 0.02 and box[0, 0] + box[0, 2] < 0.98  # noqa: E731
+        if inside(before) and inside(obs):
+            moved, in_front = moved_box(before, floor_anchor(before, *camera), *env._camera)
+            assert in_front.all()
+            centre = lambda box: box[0, :2] + box[0, 2:4] / 2  # noqa: E731
+            assert (centre(moved) - centre(obs)).abs().max() < 0.02  # a step moves it ~0.1
+            torch.testing.assert_close(moved[0, 5:], obs[0, 5:], atol=0.02, rtol=0)  # the centroid's offset too
+            compared += 1
+    assert compared >= 5
+
+
+def test_a_held_box_that_follows_the_camera_stays_at_the_border_the_target_left_by():
+    class SeenOnce:  # a segmenter that sees a box below the image centre once, then nothing
+        def __init__(self):
+            self.calls = 0
+
+        def predict_with_presence(self, scene, target, largest_component):
+            mask = torch.zeros(1, *scene.shape[1:3], dtype=torch.bool)
+            if self.calls == 0:
+                mask[0, 32:48, 24:40] = True
+            self.calls += 1
+            return mask, mask.flatten(1).any(1).float()
+
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    env = BoxState(task, "fcn", with_mask_stats=True, segmenter=SeenOnce(), hold_steps=8, hold_follows_camera=True)
+    outputs = [env.reset(seed=0)] + [env.step(0) for _ in range(9)]  # the camera steps left: the scene moves right
+    boxes = np.stack([torch.as_tensor(out[0]).reshape(-1).numpy() for out in outputs])
+    assert [bool(out[-1]["box_held"]) for out in outputs] == [False] + [True] * 8 + [False]
+    centre_x = boxes[:9, 0] + boxes[:9, 2] / 2
+    assert (np.diff(centre_x[:5]) > 0.05).all()  # it moves as the scene does, until the border cuts it
+    assert np.isclose(boxes[8, 0] + boxes[8, 2], 1.0) and np.isclose(boxes[8, 5], 0.5)  # at the right border
+    assert boxes[8, 4] < boxes[0, 4]  # its share: the part still in view
+    assert not boxes[9].any()  # the hold's steps are over
+    with pytest.raises(ValueError, match="it needs hold_steps > 0"):
+        BoxState(task, "fcn", segmenter=SeenOnce(), hold_follows_camera=True)
+    with pytest.raises(ValueError, match="box_hold_follows_camera moves a held box with the camera"):
+        mav.EnvConfig(box_hold_follows_camera=True)
+    assert EnvConfig().as_dqn_deployed().box_hold_follows_camera  # the shipped DQNs' deployment
 
 
 def test_rollout_frames_name_what_each_pixel_shows_and_attribute_false_positives(tmp_path):
