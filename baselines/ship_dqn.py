@@ -36,7 +36,8 @@ class Args:
     """where the shipped checkpoint goes"""
     as_dqn: bool = False
     """deploy it as the shipped DQNs are (`EnvConfig.as_dqn_deployed`: the verifier's bars, the FCN's segmenting
-    size, the fine moves and their zone, the step back when too close, of envs' DQN constants; scripts/make_dqn.sh);
+    size, the fine moves and their zone, the step back when too close, of envs' DQN constants, `stay` only in success,
+    the held box moving with the camera; scripts/make_dqn.sh);
     the options below, where given, still override"""
     object_set: str = "unseen"
     """the deployed objects: never seen in training"""
@@ -79,7 +80,8 @@ def ship(args: Args) -> EnvConfig:
         env = env.as_dqn_deployed().replace(**{name: bar for name, bar in bars.items() if bar})
     else:
         env = env.on_fcn_box(tuple(bars.values()))
-    env = env.replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps)
+    follows = env.box_hold_follows_camera and args.box_hold_steps > 0  # nothing held, nothing to move
+    env = env.replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps, box_hold_follows_camera=follows)
     if args.fine_step_size is not None:
         env = env.replace(fine_step_size=args.fine_step_size)
     if args.fcn_segment_size is not None:

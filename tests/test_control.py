@@ -488,6 +488,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         fine_near_centre=DQN_FINE_NEAR_CENTRE,  # the fine moves only close to the centre (docs/control.md §18)
         back_when_close=DQN_BACK_WHEN_CLOSE,  # a step back when pushed too close (docs/control.md §19)
         stay_needs_success=True,  # stay only where the mask stats say success (docs/control.md §21)
+        box_hold_follows_camera=True,  # the held box moves with the camera (docs/control.md §25)
     )
     assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused

@@ -105,7 +105,14 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
             back_when_close=DQN_BACK_WHEN_CLOSE,
             stay_needs_success=True,
+            box_hold_follows_camera=True,
         )
+    )
+    no_hold = ship_dqn.ship(
+        ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "n.pt"), as_dqn=True, box_hold_steps=0)
+    )
+    assert not no_hold.box_hold_follows_camera and no_hold == as_dqn.replace(
+        box_hold_steps=0, box_hold_follows_camera=False
     )
     bars = ship_dqn.ship(
         ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "b.pt"), as_dqn=True, fcn_track_threshold=0.5)
