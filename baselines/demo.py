@@ -11,7 +11,8 @@ look-alike objects, failed), then evaluates the greedy agent (exploration, then 
 evaluation seeds (unseen objects) acting on the box from the shipped FCN at 128² (`envs.FCN_IMAGE_SIZE`), held
 through its misses (`envs.FCN_BOX_HOLD_STEPS`), segmenting the camera's frame at its own 128²
 (`envs.FCN_SEGMENT_SIZE`), with half steps close to the target (`envs.DQN_FINE_STEP_SIZE`,
-`envs.DQN_FINE_NEAR_CENTRE`) and a step back when too close (`envs.DQN_BACK_WHEN_CLOSE`) — as deployed,
+`envs.DQN_FINE_NEAR_CENTRE`), a step back when too close (`envs.DQN_BACK_WHEN_CLOSE`), `stay` only in success and
+the held box moving with the camera — as deployed,
 `EnvConfig.as_dqn_deployed` — and on the ground-truth box,
 records the first FCN episodes to a Rerun file, prints the tables and where everything was written. It then
 evaluates the shipped agent (`agents/weights/dqn.pt`, scripts/make_dqn.sh) as deployed, on the FCN's box and
@@ -73,7 +74,7 @@ def eval_env(args: Args, box_source: str) -> EnvConfig:
     """The evaluation env on `box_source`, as the shipped DQN is deployed: the training env with the evaluation
     objects and the fine moves near the target (`eval_fine_step_size`), and on the FCN's box
     `EnvConfig.as_dqn_deployed`: the box held through the FCN's misses, its verifier bars, the network segmenting
-    the camera's own 128², the fine moves only close to the image centre."""
+    the camera's own 128², the fine moves only close to the image centre, the held box moving with the camera."""
     config = args.env.replace(box_source=box_source, object_set=args.eval_object_set)
     if box_source == "fcn":
         config = config.as_dqn_deployed()

@@ -6,7 +6,7 @@
 # box held 20 steps through the FCN's misses, the verifier's bars envs.DQN_FCN_THRESHOLDS, the network segmenting the
 # camera's 128², envs.FCN_SEGMENT_SIZE: §17, the fine moves only within envs.DQN_FINE_NEAR_CENTRE of the image
 # centre: §18, a step back when pushed too close, envs.DQN_BACK_WHEN_CLOSE: §19, `stay` only where the mask stats say
-# success: §21; EnvConfig.as_dqn_deployed), the scripted servo beside them. FULL_STEP=1 first evaluates both
+# success: §21, the held box moving with the camera: §25; EnvConfig.as_dqn_deployed), the scripted servo beside them. FULL_STEP=1 first evaluates both
 # without the fine moves too (the full step only: §9's figures).
 # Two lanes of baselines/seeds.py, one per core with one render thread each (each lane evaluates the servo once
 # per box: neither has cached it until it finishes). Finished runs and evaluations under $OUT are skipped on a
@@ -20,12 +20,13 @@ PY=.venv/bin/python
 PRESET=${PRESET:-hold_stay_fine}
 OUT=${OUT:-runs/seeds/$PRESET}
 # the shipped DQNs' deployment (EnvConfig.as_dqn_deployed): the verifier's bars, the FCN's segmenting size, the fine
-# moves' zone and step, the step back when too close, stay only where the mask stats say success
+# moves' zone and step, the step back when too close, stay only where the mask stats say success, the held box
+# moving with the camera
 read -r ACQUIRE TRACK SEGMENT NEAR FINE_STEP BACK <<< "$($PY -c "from mani_active_vision import envs as e
 print(*e.DQN_FCN_THRESHOLDS, e.FCN_SEGMENT_SIZE, e.DQN_FINE_NEAR_CENTRE, e.DQN_FINE_STEP_SIZE, e.DQN_BACK_WHEN_CLOSE)")"
 FCN=(--eval-box-source fcn --env.image-size 128 --env.box-hold-steps 20 --env.fcn-acquire-threshold "$ACQUIRE"
     --env.fcn-track-threshold "$TRACK" --env.fcn-segment-size "$SEGMENT" --env.fine-near-centre "$NEAR"
-    --env.back-when-close "$BACK" --env.stay-needs-success)
+    --env.back-when-close "$BACK" --env.stay-needs-success --env.box-hold-follows-camera)
 lanes() {
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --seeds 0 2 4 "$@" >/dev/null &
     local first=$!
