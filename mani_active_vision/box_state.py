@@ -90,8 +90,8 @@ class BoxState(gym.ObservationWrapper):
         self.thresholds = tuple(thresholds)
         self.hold_steps = hold_steps
         self.hold_follows_camera = hold_follows_camera
-        self._camera: tuple | None = None  # this step's camera: (extrinsic, intrinsic) in OpenCV axes, image width
-        self._anchor: torch.Tensor | None = None  # (N, 4) float64: the held box's floor point (x, y, z) and its depth
+        self._camera: tuple | None = None  # this step's camera: extrinsic, intrinsic (OpenCV axes), image width
+        self._seen_camera: tuple | None = None  # the camera where each held box was seen (extrinsic, intrinsic)
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
         self._held_now: torch.Tensor | None = None  # (N,) bool: the latest observation's box is a held one
@@ -112,7 +112,7 @@ class BoxState(gym.ObservationWrapper):
                 self.last_mask[torch.as_tensor(env_idx, device=self.last_mask.device)] = False
         if self._held is not None:
             if env_idx is None:
-                self._held = self._unseen_for = None
+                self._held = self._unseen_for = self._seen_camera = None
             else:
                 self._held[torch.as_tensor(env_idx, device=self._held.device)] = 0.0
         obs, info = super().reset(seed=seed, options=options)
@@ -132,10 +132,11 @@ class BoxState(gym.ObservationWrapper):
         base = self.env.unwrapped
         batch = (lambda x: torch.as_tensor(x)[None]) if self._numpy else torch.as_tensor
         self.last_observation = obs
-        if self.hold_follows_camera:
+        if self.hold_follows_camera:  # small float64 arrays: numpy is ~3x faster than torch here
             camera = obs["sensor_param"]["hand_camera"]
             width = next(iter(obs["sensor_data"]["hand_camera"].values())).shape[-2]  # (..., H, W, C) images
-            self._camera = (*(batch(camera[k]).double().cpu() for k in ("extrinsic_cv", "intrinsic_cv")), width)
+            extrinsic, intrinsic = (batch(camera[k]).cpu().double().numpy() for k in ("extrinsic_cv", "intrinsic_cv"))
+            self._camera = (extrinsic, intrinsic, width)
         if self.source == "projection":
             mask = base.projected_target_mask()  # the same mask the task's info came from this step
             presence = mask.flatten(1).any(1).float()
@@ -172,16 +173,22 @@ class BoxState(gym.ObservationWrapper):
         if self._held is None:
             self._held = torch.zeros_like(box)
             self._unseen_for = torch.zeros(len(box), dtype=torch.long, device=box.device)
-            self._anchor = torch.zeros(len(box), 4, dtype=torch.float64)
-        if self.hold_follows_camera and seen.any():
-            self._anchor = torch.where(seen[:, None].cpu(), floor_anchor(box, *self._camera), self._anchor)
+        if self.hold_follows_camera:
+            if self._seen_camera is None:
+                self._seen_camera = tuple(np.zeros_like(a) for a in self._camera[:2])
+            rows = seen.cpu().numpy()
+            for kept, now in zip(self._seen_camera, self._camera[:2]):
+                kept[rows] = now[rows]
         self._unseen_for = torch.where(seen, 0, self._unseen_for + 1)
         self._held = torch.where(seen[:, None], box, self._held)
         use = ~seen & (self._unseen_for <= self.hold_steps) & (self._held[:, 2] > 0)
         held = self._held
         if self.hold_follows_camera and use.any():
-            held, in_front = moved_box(self._held, self._anchor, *self._camera)
-            use = use & in_front.to(use.device)
+            extrinsic, intrinsic, width = self._camera
+            old = self._held.cpu().numpy().astype(np.float64)
+            moved, in_front = moved_box(old, floor_anchor(old, *self._seen_camera, width), extrinsic, intrinsic, width)
+            held = torch.as_tensor(moved).to(self._held)
+            use = use & torch.as_tensor(in_front).to(use.device)
         self._held_now = use
         return torch.where(use[:, None], held, box)
 
@@ -190,37 +197,37 @@ FLOOR_HEIGHT = 0.0
 """The floor's height (m), where the objects lie: a held box's centre is anchored where its ray meets it."""
 
 
-def floor_anchor(box: torch.Tensor, extrinsic: torch.Tensor, intrinsic: torch.Tensor, size: int) -> torch.Tensor:
-    """(N, 4) float64: where the ray through each box's centre meets the floor (x, y, z, world) and its depth in the
-    camera (OpenCV `extrinsic` (N, 3, 4) world -> camera, `intrinsic` (N, 3, 3), a `size`² image)."""
-    b = box.double().cpu()
-    pixel = torch.stack([(b[:, 0] + b[:, 2] / 2) * size, (b[:, 1] + b[:, 3] / 2) * size, torch.ones(len(b))], -1)
+def floor_anchor(box: np.ndarray, extrinsic: np.ndarray, intrinsic: np.ndarray, size: int) -> np.ndarray:
+    """(N, 4): where the ray through each box's centre (x, y, w, h normalised, (N, >= 4)) meets the floor (x, y, z,
+    world) and its depth in the camera (OpenCV `extrinsic` (N, 3, 4) world -> camera, `intrinsic` (N, 3, 3), a
+    `size`² image)."""
+    pixel = np.stack([(box[:, 0] + box[:, 2] / 2) * size, (box[:, 1] + box[:, 3] / 2) * size, np.ones(len(box))], -1)
     rotation, translation = extrinsic[:, :, :3], extrinsic[:, :, 3]
-    ray = (rotation.transpose(1, 2) @ torch.linalg.solve(intrinsic, pixel[..., None]))[..., 0]
-    centre = -(rotation.transpose(1, 2) @ translation[..., None])[..., 0]
+    ray = np.einsum("nji,nj->ni", rotation, np.linalg.solve(intrinsic, pixel[..., None])[..., 0])
+    centre = -np.einsum("nji,nj->ni", rotation, translation)
     point = centre + ((FLOOR_HEIGHT - centre[:, 2]) / ray[:, 2])[:, None] * ray
-    depth = (rotation @ point[..., None])[..., 0][:, 2] + translation[:, 2]
-    return torch.cat([point, depth[:, None]], -1)
+    depth = np.einsum("nj,nj->n", rotation[:, 2], point) + translation[:, 2]
+    return np.concatenate([point, depth[:, None]], -1)
 
 
-def moved_box(held: torch.Tensor, anchor: torch.Tensor, extrinsic, intrinsic, size: int):
+def moved_box(held: np.ndarray, anchor: np.ndarray, extrinsic: np.ndarray, intrinsic: np.ndarray, size: int):
     """(the held boxes, with their mask stats, moved to where their anchors project now; (N,) bool: the anchor is in
-    front of the camera, as it was when seen). The box is scaled by the ratio of the depths; its centre is kept within the image and the
-    box cut to it; the mask's share scales with the box's area kept, its centroid moves with the centre."""
-    camera = (extrinsic[:, :, :3] @ anchor[:, :3, None])[..., 0] + extrinsic[:, :, 3]
-    depth = camera[:, 2].clamp(min=1e-3)
-    centre = ((intrinsic @ (camera / depth[:, None])[..., None])[..., 0][:, :2] / size).clamp(0, 1)
-    h = held.double().cpu()
+    front of the camera, as it was when seen). The box is scaled by the ratio of the depths; its centre is kept within
+    the image and the box cut to it; the mask's share scales with the box's area kept, its centroid moves with the
+    centre."""
+    camera = np.einsum("nij,nj->ni", extrinsic[:, :, :3], anchor[:, :3]) + extrinsic[:, :, 3]
+    depth = np.maximum(camera[:, 2], 1e-3)
+    centre = np.clip(np.einsum("nij,nj->ni", intrinsic, camera / depth[:, None])[:, :2] / size, 0, 1)
     scale = anchor[:, 3] / depth
-    width, height = h[:, 2] * scale, h[:, 3] * scale
-    x0, y0 = (centre[:, 0] - width / 2).clamp(0, 1), (centre[:, 1] - height / 2).clamp(0, 1)
-    x1, y1 = (centre[:, 0] + width / 2).clamp(0, 1), (centre[:, 1] + height / 2).clamp(0, 1)
-    moved = torch.stack([x0, y0, x1 - x0, y1 - y0], -1)
-    if h.shape[1] > 4:  # the mask stats: share, centroid offset
-        kept = (x1 - x0) * (y1 - y0) / (width * height).clamp(min=1e-9)
-        offset = h[:, 5:7] + centre - torch.stack([h[:, 0] + h[:, 2] / 2, h[:, 1] + h[:, 3] / 2], -1)
-        moved = torch.cat([moved, (h[:, 4] * scale**2 * kept)[:, None], offset], -1)
-    return moved.to(held), (camera[:, 2] > 0.01) & (anchor[:, 3] > 0.01)  # a ray above the horizon meets no floor
+    width, height = held[:, 2] * scale, held[:, 3] * scale
+    x0, y0 = np.clip(centre[:, 0] - width / 2, 0, 1), np.clip(centre[:, 1] - height / 2, 0, 1)
+    x1, y1 = np.clip(centre[:, 0] + width / 2, 0, 1), np.clip(centre[:, 1] + height / 2, 0, 1)
+    moved = np.stack([x0, y0, x1 - x0, y1 - y0], -1)
+    if held.shape[1] > 4:  # the mask stats: share, centroid offset
+        kept = (x1 - x0) * (y1 - y0) / np.maximum(width * height, 1e-9)
+        offset = held[:, 5:7] + centre - np.stack([held[:, 0] + held[:, 2] / 2, held[:, 1] + held[:, 3] / 2], -1)
+        moved = np.concatenate([moved, (held[:, 4] * scale**2 * kept)[:, None], offset], -1)
+    return moved, (camera[:, 2] > 0.01) & (anchor[:, 3] > 0.01)  # a ray above the horizon meets no floor
 
 
 def check_thresholds(thresholds) -> None:
