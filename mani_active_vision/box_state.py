@@ -183,12 +183,16 @@ class BoxState(gym.ObservationWrapper):
         self._held = torch.where(seen[:, None], box, self._held)
         use = ~seen & (self._unseen_for <= self.hold_steps) & (self._held[:, 2] > 0)
         held = self._held
-        if self.hold_follows_camera and use.any():
+        if self.hold_follows_camera and use.any():  # only the held rows: another env may have seen nothing yet
+            rows = use.cpu().numpy().copy()
             extrinsic, intrinsic, width = self._camera
-            old = self._held.cpu().numpy().astype(np.float64)
-            moved, in_front = moved_box(old, floor_anchor(old, *self._seen_camera, width), extrinsic, intrinsic, width)
-            held = torch.as_tensor(moved).to(self._held)
-            use = use & torch.as_tensor(in_front).to(use.device)
+            old = self._held.cpu().numpy().astype(np.float64)[rows]
+            anchor = floor_anchor(old, self._seen_camera[0][rows], self._seen_camera[1][rows], width)
+            moved, in_front = moved_box(old, anchor, extrinsic[rows], intrinsic[rows], width)
+            held = self._held.clone()
+            held[use] = torch.as_tensor(moved).to(held)
+            rows[rows] = in_front
+            use = torch.as_tensor(rows).to(use.device)
         self._held_now = use
         return torch.where(use[:, None], held, box)
 

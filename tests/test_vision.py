@@ -648,6 +648,15 @@ def test_a_held_box_that_follows_the_camera_stays_at_the_border_the_target_left_
     assert np.isclose(boxes[8, 0] + boxes[8, 2], 1.0) and np.isclose(boxes[8, 5], 0.5)  # at the right border
     assert boxes[8, 4] < boxes[0, 4]  # its share: the part still in view
     assert not boxes[9].any()  # the hold's steps are over
+    # batched: an env that has seen nothing yet holds nothing, beside one whose box is held
+    batched = BoxState(task, "fcn", segmenter=SeenOnce(), hold_steps=2, hold_follows_camera=True)
+    extrinsic, intrinsic, width = env._camera
+    batched._camera = (np.repeat(extrinsic, 2, 0), np.repeat(intrinsic, 2, 0), width)
+    seen = torch.tensor([[0.375, 0.5, 0.25, 0.25], [0.0, 0.0, 0.0, 0.0]])
+    batched._hold(seen)
+    held = batched._hold(torch.zeros(2, 4))  # the same camera: the box stays where it was
+    assert batched._held_now.tolist() == [True, False] and not held[1].any()
+    torch.testing.assert_close(held[0], seen[0])
     with pytest.raises(ValueError, match="it needs hold_steps > 0"):
         BoxState(task, "fcn", segmenter=SeenOnce(), hold_follows_camera=True)
     with pytest.raises(ValueError, match="box_hold_follows_camera moves a held box with the camera"):
