@@ -80,8 +80,13 @@ def ship(args: Args) -> EnvConfig:
         env = env.as_dqn_deployed().replace(**{name: bar for name, bar in bars.items() if bar})
     else:
         env = env.on_fcn_box(tuple(bars.values()))
-    follows = env.box_hold_follows_camera and args.box_hold_steps > 0  # nothing held, nothing to move
-    env = env.replace(object_set=args.object_set, box_hold_steps=args.box_hold_steps, box_hold_follows_camera=follows)
+    held = args.box_hold_steps > 0  # nothing held: nothing to move or drop
+    env = env.replace(
+        object_set=args.object_set,
+        box_hold_steps=args.box_hold_steps,
+        box_hold_follows_camera=env.box_hold_follows_camera and held,
+        box_hold_drop_centred=env.box_hold_drop_centred if held else 0,
+    )
     if args.fine_step_size is not None:
         env = env.replace(fine_step_size=args.fine_step_size)
     if args.fcn_segment_size is not None:

@@ -45,6 +45,10 @@ class BoxState(gym.ObservationWrapper):
     projected with the camera of that step (the observation's `sensor_param`), the box scaled by the ratio of the
     depths, its centre kept within the image (a target that left the view stays at the border it left by, half in
     view), cut to the image; the mask stats follow it (docs/control.md §25).
+    `hold_drop_centred`: a held box whose centre has lain within `CENTRED` of the image centre on both axes for more
+    than this many held steps in a row is dropped until a box is seen again (0: never): there the target, not cut by
+    the border, is seldom missed that long, and a look-alike taken up on one frame is held no further (docs/control.md
+    §27).
     """
 
     def __init__(
@@ -58,6 +62,7 @@ class BoxState(gym.ObservationWrapper):
         thresholds: tuple[float, float] = (0.0, 0.0),
         hold_steps: int = 0,
         hold_follows_camera: bool = False,
+        hold_drop_centred: int = 0,
     ):
         super().__init__(env)
         check_thresholds(thresholds)
@@ -75,6 +80,13 @@ class BoxState(gym.ObservationWrapper):
                 f"hold_follows_camera moves a held box with the rendered camera: it needs hold_steps > 0 (got "
                 f"{hold_steps}) and source ground_truth or fcn (got {source!r})"
             )
+        if not (isinstance(hold_drop_centred, int) and hold_drop_centred >= 0) or (
+            hold_drop_centred and not hold_steps
+        ):
+            raise ValueError(
+                f"hold_drop_centred={hold_drop_centred!r} must be an integer of at least 0 (0: never), and needs "
+                f"hold_steps > 0 (got {hold_steps})"
+            )
         if source == "fcn" and segmenter is None:
             raise ValueError(
                 "BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())"
@@ -90,10 +102,12 @@ class BoxState(gym.ObservationWrapper):
         self.thresholds = tuple(thresholds)
         self.hold_steps = hold_steps
         self.hold_follows_camera = hold_follows_camera
+        self.hold_drop_centred = hold_drop_centred
         self._camera: tuple | None = None  # this step's camera: extrinsic, intrinsic (OpenCV axes), image width
         self._seen_camera: tuple | None = None  # the camera where each held box was seen (extrinsic, intrinsic)
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
+        self._centred_for: torch.Tensor | None = None  # (N,): held steps in a row with the held box centred
         self._held_now: torch.Tensor | None = None  # (N,) bool: the latest observation's box is a held one
         dim = 4 + 3 * with_ee_pos + with_presence + 3 * with_mask_stats
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
@@ -112,9 +126,10 @@ class BoxState(gym.ObservationWrapper):
                 self.last_mask[torch.as_tensor(env_idx, device=self.last_mask.device)] = False
         if self._held is not None:
             if env_idx is None:
-                self._held = self._unseen_for = self._seen_camera = None
+                self._held = self._unseen_for = self._seen_camera = self._centred_for = None
             else:
                 self._held[torch.as_tensor(env_idx, device=self._held.device)] = 0.0
+                self._centred_for[torch.as_tensor(env_idx, device=self._held.device)] = 0
         obs, info = super().reset(seed=seed, options=options)
         return obs, self._with_held(info)
 
@@ -173,6 +188,7 @@ class BoxState(gym.ObservationWrapper):
         if self._held is None:
             self._held = torch.zeros_like(box)
             self._unseen_for = torch.zeros(len(box), dtype=torch.long, device=box.device)
+            self._centred_for = torch.zeros_like(self._unseen_for)
         if self.hold_follows_camera:
             if self._seen_camera is None:
                 self._seen_camera = tuple(np.zeros_like(a) for a in self._camera[:2])
@@ -193,12 +209,21 @@ class BoxState(gym.ObservationWrapper):
             held[use] = torch.as_tensor(moved).to(held)
             rows[rows] = in_front
             use = torch.as_tensor(rows).to(use.device)
+        if self.hold_drop_centred:
+            centred = use & ((held[:, :2] + held[:, 2:4] / 2 - 0.5).abs() < CENTRED).all(1)
+            self._centred_for = torch.where(centred, self._centred_for + 1, 0)
+            dropped = self._centred_for > self.hold_drop_centred
+            self._unseen_for = torch.where(dropped, self.hold_steps + 1, self._unseen_for)  # held no more until seen
+            use = use & ~dropped
         self._held_now = use
         return torch.where(use[:, None], held, box)
 
 
 FLOOR_HEIGHT = 0.0
 """The floor's height (m), where the objects lie: a held box's centre is anchored where its ray meets it."""
+CENTRED = 0.25
+"""`BoxState(hold_drop_centred=)`: how far from the image centre (a fraction of its side, on both axes) a held box's
+centre counts as centred: the middle half of the image"""
 
 
 def floor_anchor(box: np.ndarray, extrinsic: np.ndarray, intrinsic: np.ndarray, size: int) -> np.ndarray:

@@ -38,6 +38,7 @@ from mani_active_vision.agents.q_network import QNetwork, load_q_network, save_q
 from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import (
     DQN_BACK_WHEN_CLOSE,
+    DQN_BOX_HOLD_DROP_CENTRED,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
@@ -489,6 +490,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         back_when_close=DQN_BACK_WHEN_CLOSE,  # a step back when pushed too close (docs/control.md §19)
         stay_needs_success=True,  # stay only where the mask stats say success (docs/control.md §21)
         box_hold_follows_camera=True,  # the held box moves with the camera (docs/control.md §25)
+        box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,  # and is dropped once centred, unseen (docs/control.md §27)
     )
     assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused

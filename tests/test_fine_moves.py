@@ -29,6 +29,7 @@ from mani_active_vision.box_state import BoxState
 from mani_active_vision.directions import FINE, STAY, action_count, action_names, action_names_for
 from mani_active_vision.envs import (
     DQN_BACK_WHEN_CLOSE,
+    DQN_BOX_HOLD_DROP_CENTRED,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
@@ -106,13 +107,14 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             back_when_close=DQN_BACK_WHEN_CLOSE,
             stay_needs_success=True,
             box_hold_follows_camera=True,
+            box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
         )
     )
     no_hold = ship_dqn.ship(
         ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "n.pt"), as_dqn=True, box_hold_steps=0)
     )
     assert not no_hold.box_hold_follows_camera and no_hold == as_dqn.replace(
-        box_hold_steps=0, box_hold_follows_camera=False
+        box_hold_steps=0, box_hold_follows_camera=False, box_hold_drop_centred=0
     )
     bars = ship_dqn.ship(
         ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "b.pt"), as_dqn=True, fcn_track_threshold=0.5)

@@ -600,6 +600,35 @@ def test_box_hold_keeps_the_last_box_seen_for_its_steps_and_forgets_it_at_reset(
         mav.EnvConfig(box_hold_steps=-1)
 
 
+def test_a_held_box_centred_in_the_view_is_dropped_after_its_steps_until_a_box_is_seen_again():
+    class Scripted:  # a segmenter that sees a box at the image centre or at its border, then nothing
+        def __init__(self, seen):
+            self.seen, self.calls = seen, 0
+
+        def predict_with_presence(self, scene, target, largest_component):
+            mask = torch.zeros(1, *scene.shape[1:3], dtype=torch.bool)
+            where = self.seen[self.calls % len(self.seen)]
+            if where == "centre":
+                mask[0, 28:36, 28:36] = True
+            elif where == "border":
+                mask[0, 28:36, 0:8] = True
+            self.calls += 1
+            return mask, mask.flatten(1).any(1).float()
+
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    seen = ["centre"] + [None] * 4 + ["border"] + [None] * 4
+    env = BoxState(task, source="fcn", segmenter=Scripted(seen), hold_steps=10, hold_drop_centred=2)
+    outputs = [env.reset(seed=0)] + [env.step(0) for _ in range(9)]
+    held = [out[-1]["box_held"] for out in outputs]
+    assert held == [False, True, True, False, False, False, True, True, True, True]  # centred: 2 steps; border: all
+    assert not torch.as_tensor(outputs[3][0]).any() and not torch.as_tensor(outputs[4][0]).any()  # dropped
+    for bad in (-1, 1.5):
+        with pytest.raises(ValueError, match=f"hold_drop_centred={bad} must be an integer of at least 0"):
+            BoxState(task, source="fcn", segmenter=Scripted(seen), hold_steps=10, hold_drop_centred=bad)
+    with pytest.raises(ValueError, match="box_hold_drop_centred=4 must be .* needs box_hold_steps > 0"):
+        EnvConfig(box_hold_drop_centred=4)
+
+
 def test_a_held_box_that_follows_the_camera_moves_as_the_ground_truths_box_does():
     """Anchored on the floor where the box was seen and projected with the next step's camera, the box lands where
     the ground truth's box is after that step (the real renderer, steps of every direction)."""
