@@ -622,6 +622,13 @@ def test_a_held_box_centred_in_the_view_is_dropped_after_its_steps_until_a_box_i
     held = [out[-1]["box_held"] for out in outputs]
     assert held == [False, True, True, False, False, False, True, True, True, True]  # centred: 2 steps; border: all
     assert not torch.as_tensor(outputs[3][0]).any() and not torch.as_tensor(outputs[4][0]).any()  # dropped
+    batched = BoxState(task, source="fcn", segmenter=Scripted(seen), hold_steps=10, hold_drop_centred=1)
+    batched._hold(torch.tensor([[0.45, 0.45, 0.1, 0.1], [0.0, 0.45, 0.1, 0.1]]))  # one centred, one at the border
+    held_now = []
+    for _ in range(3):
+        batched._hold(torch.zeros(2, 4))
+        held_now.append(batched._held_now.tolist())
+    assert held_now == [[True, True], [False, True], [False, True]]  # each env's own count: the centred one dropped
     for bad in (-1, 1.5):
         with pytest.raises(ValueError, match=f"hold_drop_centred={bad} must be an integer of at least 0"):
             BoxState(task, source="fcn", segmenter=Scripted(seen), hold_steps=10, hold_drop_centred=bad)
