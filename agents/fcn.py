@@ -360,6 +360,7 @@ class OneShotFCN(nn.Module):
         runtime: str = "auto",
         previous: torch.Tensor | None = None,
         thresholds: tuple[float, float] = (0.0, 0.0),
+        border_bar_near_previous: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(`predict`'s mask, presence probability (N,)): the presence head's "target in view" probability, or
         for a model without one 1.0 where the mask is not empty and 0.0 where it is.
@@ -368,7 +369,10 @@ class OneShotFCN(nn.Module):
         one, and one near the region kept at the previous step (`previous` (N, H, W) bool, that step's masks
         for the same episodes; `verifier.near_previous`); 0 is the checkpoint's `verifier_threshold`. Tracking
         (a high bar to acquire, a lower one to keep) holds the target through frames where its score dips,
-        and makes a look-alike's single high score on one frame rarer to act on.
+        and makes a look-alike's single high score on one frame rarer to act on. `border_bar_near_previous`: a
+        region cut by the image's border gets the verifier's low bar for such regions (`verifier_cut_threshold`) only
+        near the previous step's region, in images that have one; elsewhere it needs the acquire bar (a look-alike
+        entering by one border while the target is tracked at another is not taken up at the low bar).
 
         `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graphs (network and verifier)
         exported from the current weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float
@@ -409,6 +413,7 @@ class OneShotFCN(nn.Module):
                 best_only=largest_component,
                 previous=previous,
                 thresholds=thresholds,
+                border_bar_near_previous=border_bar_near_previous,
                 runtime=runtime,
             )
             return mask, presence
@@ -429,13 +434,14 @@ class OneShotFCN(nn.Module):
         best_only: bool = False,
         previous: torch.Tensor | None = None,
         thresholds: tuple[float, float] = (0.0, 0.0),
+        border_bar_near_previous: bool = False,
         runtime: str = "auto",
     ):
         """(mask of the candidate regions the verifier accepts (with `best_only`, the most probable of them),
         the best region's probability (N,)) of uint8 scenes (N, H, W, 3), normalised targets (N, 3, h, w) and
         the segmentation's masks (N, H, W); `weights` is `_weights_key()` (keys the target crop's encoding);
-        `previous`, `thresholds`: `predict_with_presence`'s; `runtime` as there (the crops and the target's
-        encoding stay torch's)."""
+        `previous`, `thresholds`, `border_bar_near_previous`: `predict_with_presence`'s; `runtime` as there (the
+        crops and the target's encoding stay torch's)."""
         if not mask.any():  # no candidate region in any image (~40% of an episode's frames): nothing to verify
             return torch.zeros_like(mask, device=scene_rgb.device), torch.zeros(len(mask), device=scene_rgb.device)
         candidates = candidate_crops(
@@ -445,9 +451,13 @@ class OneShotFCN(nn.Module):
         acquire, track = (t or self.config.verifier_threshold for t in thresholds)
         threshold = torch.full_like(logits, acquire)
         if previous is not None:
-            threshold[near_previous(candidates["boxes"], candidates["image"], previous.to(logits.device))] = track
+            previous = previous.to(logits.device)
+            near = near_previous(candidates["boxes"], candidates["image"], previous)
+            threshold[near] = track
         if self.config.verifier_cut_share:
             cut = cut_regions(candidates, mask.shape[1:], self.config.verifier_cut_share).to(logits.device)
+            if border_bar_near_previous and previous is not None:  # images that track nothing keep the low bar
+                cut &= near | ~previous.flatten(1).any(1)[candidates["image"]]
             threshold[cut] = threshold[cut].clamp(max=self.config.verifier_cut_threshold)
         mask, presence = keep_verified(candidates, logits.sigmoid(), threshold, len(scene_rgb), best_only)
         return mask.to(scene_rgb.device), presence.to(scene_rgb.device)

@@ -49,6 +49,11 @@ class BoxState(gym.ObservationWrapper):
     than this many held steps in a row is dropped until a box is seen again (0: never): there the target, not cut by
     the border, is seldom missed that long, and a look-alike taken up on one frame is held no further (docs/control.md
     §27).
+    `border_bar_near_box`: for `source="fcn"` with `thresholds`, the box tracked from the previous step is the kept
+    region or, where the box was a held one, the held box too (its pixels, moved with the camera where it follows it),
+    and a region cut by the image's border gets the verifier's low bar only near it
+    (`OneShotFCN.predict_with_presence(border_bar_near_previous=True)`): after the target has left by one border, a
+    look-alike entering by another needs the acquire bar (docs/control.md §30).
     """
 
     def __init__(
@@ -63,6 +68,7 @@ class BoxState(gym.ObservationWrapper):
         hold_steps: int = 0,
         hold_follows_camera: bool = False,
         hold_drop_centred: int = 0,
+        border_bar_near_box: bool = False,
     ):
         super().__init__(env)
         check_thresholds(thresholds)
@@ -87,6 +93,11 @@ class BoxState(gym.ObservationWrapper):
                 f"hold_drop_centred={hold_drop_centred!r} must be an integer of at least 0 (0: never), and needs "
                 f"hold_steps > 0 (got {hold_steps})"
             )
+        if border_bar_near_box and not (source == "fcn" and any(thresholds)):
+            raise ValueError(
+                "border_bar_near_box restricts the verifier's low bar to the tracked box: it needs source 'fcn' (got "
+                f"{source!r}) and thresholds (acquire, track) other than (0, 0), which track it (got {thresholds})"
+            )
         if source == "fcn" and segmenter is None:
             raise ValueError(
                 "BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())"
@@ -103,12 +114,14 @@ class BoxState(gym.ObservationWrapper):
         self.hold_steps = hold_steps
         self.hold_follows_camera = hold_follows_camera
         self.hold_drop_centred = hold_drop_centred
+        self.border_bar_near_box = border_bar_near_box
         self._camera: tuple | None = None  # this step's camera: extrinsic, intrinsic (OpenCV axes), image width
         self._seen_camera: tuple | None = None  # the camera where each held box was seen (extrinsic, intrinsic)
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
         self._unseen_for: torch.Tensor | None = None  # (N,): steps since then
         self._centred_for: torch.Tensor | None = None  # (N,): held steps in a row with the held box centred
         self._held_now: torch.Tensor | None = None  # (N,) bool: the latest observation's box is a held one
+        self._held_box: torch.Tensor | None = None  # (N, 4): that held box, where it is one
         dim = 4 + 3 * with_ee_pos + with_presence + 3 * with_mask_stats
         # CPUGymWrapper turns a one-env ManiSkill env into a numpy, unbatched one; keep its convention.
         self._numpy = any(type(e).__name__ == "CPUGymWrapper" for e in _wrapper_chain(env))
@@ -126,10 +139,12 @@ class BoxState(gym.ObservationWrapper):
                 self.last_mask[torch.as_tensor(env_idx, device=self.last_mask.device)] = False
         if self._held is not None:
             if env_idx is None:
-                self._held = self._unseen_for = self._seen_camera = self._centred_for = None
+                self._held = self._unseen_for = self._seen_camera = self._centred_for = self._held_now = None
             else:
                 self._held[torch.as_tensor(env_idx, device=self._held.device)] = 0.0
                 self._centred_for[torch.as_tensor(env_idx, device=self._held.device)] = 0
+                self._held_now = self._held_now.clone()
+                self._held_now[torch.as_tensor(env_idx, device=self._held.device)] = False
         obs, info = super().reset(seed=seed, options=options)
         return obs, self._with_held(info)
 
@@ -156,7 +171,12 @@ class BoxState(gym.ObservationWrapper):
             mask = base.projected_target_mask()  # the same mask the task's info came from this step
             presence = mask.flatten(1).any(1).float()
         elif self.source == "fcn":
-            tracking = dict(previous=self.last_mask, thresholds=self.thresholds) if any(self.thresholds) else {}
+            tracking = {}
+            if any(self.thresholds):
+                previous = self._tracked_mask() if self.border_bar_near_box else self.last_mask
+                tracking = dict(
+                    previous=previous, thresholds=self.thresholds, border_bar_near_previous=self.border_bar_near_box
+                )
             mask, presence = self.segmenter.predict_with_presence(
                 batch(obs["sensor_data"]["hand_camera"]["rgb"]),
                 batch(obs["extra"]["target_image"]),
@@ -215,8 +235,21 @@ class BoxState(gym.ObservationWrapper):
             dropped = self._centred_for > self.hold_drop_centred
             self._unseen_for = torch.where(dropped, self.hold_steps + 1, self._unseen_for)  # held no more until seen
             use = use & ~dropped
-        self._held_now = use
+        self._held_now, self._held_box = use, held[:, :4]
         return torch.where(use[:, None], held, box)
+
+    def _tracked_mask(self) -> torch.Tensor | None:
+        """The previous step's kept mask with, where that step's box was a held one, the held box's pixels added."""
+        mask = self.last_mask
+        if mask is None or self._held_now is None or not self._held_now.any():
+            return mask
+        mask = mask.clone()
+        height, width = mask.shape[1:]
+        for i in torch.nonzero(self._held_now).flatten().tolist():
+            x, y, w, h = self._held_box[i].tolist()
+            top, left = int(y * height), int(x * width)
+            mask[i, top : max(int((y + h) * height), top + 1), left : max(int((x + w) * width), left + 1)] = True
+        return mask
 
 
 FLOOR_HEIGHT = 0.0

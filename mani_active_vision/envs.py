@@ -124,6 +124,11 @@ class EnvConfig:
     """with box_hold_steps, the held box moves as the camera does (as the ground truth's box would), anchored where
     its centre's ray met the floor, and stays at the image's border once the target has left by it; off: it stays
     where it was last seen. The shipped DQNs are deployed with it (docs/control.md §25)"""
+    fcn_border_bar_near_box: bool = False
+    """box_source=fcn with the verifier's bars: a region cut by the image's border gets the verifier's low bar for
+    such regions only near the previous step's box, kept or held; elsewhere it needs the acquire bar, so that a
+    look-alike entering by one border after the target left by another is not taken up (other box sources: no
+    effect). The shipped DQNs are deployed with it (docs/control.md §30)"""
     with_ee_pos: bool = False
     """append the camera's commanded position to the box (the paper's "link state")"""
     with_mask_stats: bool = False
@@ -193,6 +198,15 @@ class EnvConfig:
                 "box_hold_follows_camera moves a held box with the camera: it needs box_hold_steps > 0 (got "
                 f"{self.box_hold_steps}) and box_source ground_truth or fcn (got {self.box_source!r})"
             )
+        if (
+            self.fcn_border_bar_near_box
+            and self.box_source == "fcn"
+            and not (self.fcn_acquire_threshold or self.fcn_track_threshold)
+        ):
+            raise ValueError(
+                "fcn_border_bar_near_box restricts the verifier's low bar to the tracked box: on the FCN's box it "
+                "needs fcn_acquire_threshold or fcn_track_threshold set, which track it (got 0.0, 0.0)"
+            )
         if not 0 <= self.fine_step_size < self.step_size:
             raise ValueError(
                 f"fine_step_size={self.fine_step_size!r} must be in [0, step_size={self.step_size}) (0: no fine moves)"
@@ -255,7 +269,8 @@ class EnvConfig:
         (`DQN_FINE_STEP_SIZE`) within `DQN_FINE_NEAR_CENTRE` of the image centre, and a step back when the box is
         cut and `DQN_BACK_WHEN_CLOSE` of the image or more, and `stay` only where the mask stats say success (where the
         state has them to judge by; every preset with `stay` does), and the held box moving with the camera and
-        dropped once centred and unseen for `DQN_BOX_HOLD_DROP_CENTRED` steps (docs/control.md §12, §17–§21, §25, §27)."""
+        dropped once centred and unseen for `DQN_BOX_HOLD_DROP_CENTRED` steps, and the border's low bar only near the
+        tracked box (docs/control.md §12, §17–§21, §25, §27, §30)."""
         return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
@@ -264,6 +279,7 @@ class EnvConfig:
             stay_needs_success=self.with_mask_stats,
             box_hold_follows_camera=True,
             box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
+            fcn_border_bar_near_box=True,
         )
 
     @classmethod
@@ -299,6 +315,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         hold_steps=config.box_hold_steps,
         hold_follows_camera=config.box_hold_follows_camera,
         hold_drop_centred=config.box_hold_drop_centred,
+        border_bar_near_box=config.fcn_border_bar_near_box and config.box_source == "fcn",
     )
 
 

@@ -491,6 +491,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         stay_needs_success=True,  # stay only where the mask stats say success (docs/control.md §21)
         box_hold_follows_camera=True,  # the held box moves with the camera (docs/control.md §25)
         box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,  # and is dropped once centred, unseen (docs/control.md §27)
+        fcn_border_bar_near_box=True,  # the border's low bar only near the tracked box (docs/control.md §30)
     )
     assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused

@@ -108,6 +108,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             stay_needs_success=True,
             box_hold_follows_camera=True,
             box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
+            fcn_border_bar_near_box=True,
         )
     )
     no_hold = ship_dqn.ship(

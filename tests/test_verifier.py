@@ -191,6 +191,44 @@ def test_a_large_region_cut_by_the_border_needs_only_the_cut_bar():
         FCNConfig(verifier_cut_share=1.5)
 
 
+def test_the_border_bar_can_be_kept_to_regions_near_the_tracked_box():
+    torch.manual_seed(0)
+    config = FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.9, verifier_cut_share=0.05)
+    model = OneShotFCN(dataclasses.replace(config, verifier_cut_threshold=0.4)).eval()
+    with torch.no_grad():  # the verifier scores every region 0.5: under the bars (0.9), over the border's (0.4)
+        model.verifier.head[-1].weight.zero_()
+        model.verifier.head[-1].bias.zero_()
+    scene = torch.from_numpy(np.random.default_rng(0).integers(0, 256, (1, 64, 64, 3), dtype=np.uint8))
+    target = np.full((1, 64, 64, 3), 128, np.uint8)
+    target[:, 20:40, 24:44] = 200
+    target = normalize_images(torch.from_numpy(target))
+    mask = torch.zeros(1, 64, 64, dtype=torch.bool)
+    mask[0, 20:40, 44:64] = True  # cut by the right border, 0.10 of the image
+    tracked_left, tracked_right = torch.zeros_like(mask), torch.zeros_like(mask)
+    tracked_left[0, 20:36, 0:8] = True  # e.g. the held box where the target left by the left border
+    tracked_right[0, 20:36, 56:64] = True
+
+    def kept(previous, near_only):
+        with torch.inference_mode():
+            return bool(
+                model.verify(
+                    scene,
+                    target,
+                    mask,
+                    model._weights_key(),
+                    best_only=True,
+                    previous=previous,
+                    thresholds=(0.9, 0.9),
+                    border_bar_near_previous=near_only,
+                )[0].any()
+            )
+
+    assert kept(tracked_left, near_only=False)  # anywhere at the border's bar
+    assert not kept(tracked_left, near_only=True)  # far from the tracked box: the acquire bar
+    assert kept(tracked_right, near_only=True)  # near it: the border's bar still
+    assert kept(torch.zeros_like(mask), near_only=True)  # nothing tracked: the border's bar everywhere
+
+
 def test_mirror_averages_the_logits_of_the_pair_and_of_both_crops_mirrored():
     torch.manual_seed(0)
     config = FCNConfig(channels=(8, 8, 16), verifier_crop=16, verifier_threshold=0.5)

@@ -600,6 +600,40 @@ def test_box_hold_keeps_the_last_box_seen_for_its_steps_and_forgets_it_at_reset(
         mav.EnvConfig(box_hold_steps=-1)
 
 
+def test_the_held_box_is_tracked_where_the_border_bar_is_kept_near_it():
+    class Scripted:  # a segmenter that sees a box, then nothing, noting what it is asked to track
+        def __init__(self):
+            self.calls = []
+
+        def predict_with_presence(self, scene, target, largest_component, **tracking):
+            self.calls.append(tracking)
+            mask = torch.zeros(1, *scene.shape[1:3], dtype=torch.bool)
+            if len(self.calls) == 1:
+                mask[0, 8:24, 16:32] = True
+            return mask, mask.flatten(1).any(1).float()
+
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    segmenter = Scripted()
+    env = BoxState(
+        task, source="fcn", segmenter=segmenter, thresholds=(0.97, 0.9), hold_steps=2, border_bar_near_box=True
+    )
+    env.reset(seed=0)
+    env.step(0)  # the box is held
+    env.step(0)
+    seen, held = segmenter.calls[1]["previous"], segmenter.calls[2]["previous"]
+    assert seen[0, 8:24, 16:32].all() and seen.sum() == 16 * 16  # the region kept
+    assert held[0, 8:24, 16:32].all() and held.sum() == 16 * 16  # nothing kept: the held box (it stays put here)
+    assert all(call["border_bar_near_previous"] for call in segmenter.calls[1:])
+    segmenter.calls.clear()
+    env.reset(seed=0)
+    assert segmenter.calls[0]["previous"] is None  # a new episode tracks nothing of the last
+    with pytest.raises(ValueError, match="border_bar_near_box restricts the verifier's low bar"):
+        BoxState(task, source="fcn", segmenter=segmenter, border_bar_near_box=True)
+    with pytest.raises(ValueError, match="fcn_border_bar_near_box restricts the verifier's low bar"):
+        mav.EnvConfig(box_source="fcn", fcn_border_bar_near_box=True)
+    assert mav.EnvConfig(fcn_border_bar_near_box=True).box_source == "ground_truth"  # the FCN's field, ignored there
+
+
 def test_a_held_box_centred_in_the_view_is_dropped_after_its_steps_until_a_box_is_seen_again():
     class Scripted:  # a segmenter that sees a box at the image centre or at its border, then nothing
         def __init__(self, seen):
