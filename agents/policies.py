@@ -98,6 +98,14 @@ def back_when_close(env) -> float:
         return 0.0
 
 
+def explore_resumes_after(env) -> int:
+    """The env's `explore_resumes_after` (0 where it has none)."""
+    try:
+        return int(directions_option(env, "explore_resumes_after"))
+    except AttributeError:
+        return 0
+
+
 def stay_needs_success(env) -> bool:
     """The env's `stay_needs_success` (False where it has none)."""
     try:
@@ -403,6 +411,9 @@ class ExplorePolicy:
     to tell its own steps from the script's. With `look_over` the orbit starts with LOOK_OVER (scenes with
     occluders); by default, where a DQN checkpoint was trained after that lead-in (its `look_over`). With
     `first_turn` (e.g. SWEEP_TURN) the orbit first turns back after that many steps, not at joint 1's limit.
+    Where the env says so (`EnvConfig.explore_resumes_after`), an env whose box state has been empty (nothing seen,
+    nothing held) for that many steps after the hand-over is handed back to the orbit until the next sighting: a
+    hand-over on a look-alike then costs a detour, not the episode (docs/control.md §31).
     """
 
     def __init__(
@@ -418,18 +429,25 @@ class ExplorePolicy:
             raise ValueError(f"first_turn={first_turn} must be >= 0, and 0 with look_over (LOOK_OVER_TURN)")
         self.sweep = Sweep.looking_over(self.num_envs) if look_over else Sweep(self.num_envs, first_turn=first_turn)
         self.handed_over = np.zeros(self.num_envs, dtype=bool)
+        self.resumes_after = explore_resumes_after(env)
+        self.unseen_for = np.zeros(self.num_envs, dtype=np.int64)  # steps in a row with an empty box
 
     def reset(self, obs, info):
         self.sweep.reset()
         self.handed_over[:] = False
+        self.unseen_for[:] = 0
         if self.then is not None:
             self.then.reset(obs, info)
 
     def update(self, obs):
-        """Latch the hand-over for envs whose target is in view now, the sweep's lead-in (if any) done; returns
-        `handed_over`."""
+        """Latch the hand-over for envs whose target is in view now, the sweep's lead-in (if any) done (and, with
+        `resumes_after`, release it where the box has been empty that long); returns `handed_over`."""
         if self.then is not None:
-            self.handed_over |= (box_array(obs)[:, 2] > 0) & ~self.sweep.leading()
+            seen = box_array(obs)[:, 2] > 0
+            if self.resumes_after:
+                self.unseen_for = np.where(seen, 0, self.unseen_for + 1)
+                self.handed_over &= self.unseen_for < self.resumes_after
+            self.handed_over |= seen & ~self.sweep.leading()
         return self.handed_over
 
     def act(self, obs, info) -> np.ndarray:

@@ -107,7 +107,8 @@ class DiscreteDirections(gym.ActionWrapper):
     steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
     `fine_near_centre` is where policies take the fine moves (`agents.policies.near_target`): it is kept here,
     with the moves, so that a policy reads it from the env it acts in (`agents.policies.fine_near_centre`), as
-    it reads `back_when_close` (`agents.policies.too_close`) and `stay_needs_success` (`agents.policies.stay_rule`).
+    it reads `back_when_close` (`agents.policies.too_close`), `stay_needs_success` (`agents.policies.stay_rule`)
+    and `explore_resumes_after` (`agents.policies.ExplorePolicy`).
     """
 
     def __init__(
@@ -118,6 +119,7 @@ class DiscreteDirections(gym.ActionWrapper):
         fine_near_centre: float = FINE_NEAR_CENTRE,
         back_when_close: float = 0.0,
         stay_needs_success: bool = False,
+        explore_resumes_after: int = 0,
     ):
         super().__init__(env)
         base = env.unwrapped
@@ -134,7 +136,11 @@ class DiscreteDirections(gym.ActionWrapper):
         if not 0 <= back_when_close <= 1:
             raise ValueError(f"back_when_close={back_when_close!r} must be in [0, 1] (0: off): a share of the image")
         self.fine_step, self.fine_near_centre, self.back_when_close = fine_step, fine_near_centre, back_when_close
-        self.stay_needs_success = stay_needs_success
+        if not (isinstance(explore_resumes_after, int) and explore_resumes_after >= 0):
+            raise ValueError(
+                f"explore_resumes_after={explore_resumes_after!r} must be an integer of at least 0 (0: never)"
+            )
+        self.stay_needs_success, self.explore_resumes_after = stay_needs_success, explore_resumes_after
         self.names = action_names(stay_action, fine_step > 0)
         n = len(self.names)
         self.action_space = gym.spaces.MultiDiscrete([n] * self.num_envs) if self._batched else gym.spaces.Discrete(n)

@@ -62,6 +62,11 @@ a view the networks never learnt from (they stay or cycle there); with the step 
 most), success unchanged or higher (docs/control.md §19); on the first set 0.96 once it acts only on a box seen at
 that step, not a held one (§20)."""
 
+DQN_EXPLORE_RESUMES_AFTER = 5
+"""`EnvConfig.explore_resumes_after` where the shipped DQNs are deployed: once the box has been empty (nothing seen,
+nothing held) for 5 steps after the hand-over, the scripted exploration orbits again until the next sighting. A
+hand-over on a look-alike otherwise leaves the network acting on an empty box to the episode's end (docs/control.md
+§31)."""
 DQN_BOX_HOLD_DROP_CENTRED = 4
 """`EnvConfig.box_hold_drop_centred` where the shipped DQNs are deployed: a held box centred in the image for more than
 4 held steps in a row, nothing seen there, is dropped. A look-alike the FCN takes up on one frame is otherwise held
@@ -158,6 +163,11 @@ class EnvConfig:
     """0: off; > 0: a DQN policy steps backward (zoom out) instead of its choice while the box, seen this step (not
     held), touches the image's border and covers at least this share of the image (`agents.policies.too_close`); the
     shipped DQNs are deployed at DQN_BACK_WHEN_CLOSE (docs/control.md §19–20)"""
+    explore_resumes_after: int = 0
+    """after the scripted exploration has handed over to a policy (`agents.policies.ExplorePolicy`), once the box
+    state has been empty (nothing seen, nothing held) for this many steps in a row, the exploration orbits again until
+    the next sighting (0: never, the paper's single hand-over). The shipped DQNs are deployed with
+    DQN_EXPLORE_RESUMES_AFTER (docs/control.md §31)"""
     stay_needs_success: bool = False
     """a learned policy with `stay` (the DQN, the memory agent) takes it only where the box source's mask stats say
     the view is in success (its share of the image at least success_fraction, its centroid within
@@ -206,6 +216,10 @@ class EnvConfig:
             raise ValueError(
                 "fcn_border_bar_near_box restricts the verifier's low bar to the tracked box: on the FCN's box it "
                 "needs fcn_acquire_threshold or fcn_track_threshold set, which track it (got 0.0, 0.0)"
+            )
+        if not (isinstance(self.explore_resumes_after, int) and self.explore_resumes_after >= 0):
+            raise ValueError(
+                f"explore_resumes_after={self.explore_resumes_after!r} must be an integer of at least 0 (0: never)"
             )
         if not 0 <= self.fine_step_size < self.step_size:
             raise ValueError(
@@ -270,7 +284,8 @@ class EnvConfig:
         cut and `DQN_BACK_WHEN_CLOSE` of the image or more, and `stay` only where the mask stats say success (where the
         state has them to judge by; every preset with `stay` does), and the held box moving with the camera and
         dropped once centred and unseen for `DQN_BOX_HOLD_DROP_CENTRED` steps, and the border's low bar only near the
-        tracked box (docs/control.md §12, §17–§21, §25, §27, §30)."""
+        tracked box, and the exploration resuming after `DQN_EXPLORE_RESUMES_AFTER` steps of an empty box
+        (docs/control.md §12, §17–§21, §25, §27, §30, §31)."""
         return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
@@ -280,6 +295,7 @@ class EnvConfig:
             box_hold_follows_camera=True,
             box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
             fcn_border_bar_near_box=True,
+            explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,
         )
 
     @classmethod
@@ -299,6 +315,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         fine_near_centre=config.fine_near_centre,
         back_when_close=config.back_when_close,
         stay_needs_success=config.stay_needs_success,
+        explore_resumes_after=config.explore_resumes_after,
     )
     if config.box_source == "none":
         return env

@@ -21,14 +21,15 @@ PRESET=${PRESET:-hold_stay_fine}
 OUT=${OUT:-runs/seeds/$PRESET}
 # the shipped DQNs' deployment (EnvConfig.as_dqn_deployed): the verifier's bars, the FCN's segmenting size, the fine
 # moves' zone and step, the step back when too close, stay only where the mask stats say success, the held box
-# moving with the camera and dropped once centred and unseen, the border's low bar only near the tracked box
-read -r ACQUIRE TRACK SEGMENT NEAR FINE_STEP BACK DROP <<< "$($PY -c "from mani_active_vision import envs as e
+# moving with the camera and dropped once centred and unseen, the border's low bar only near the tracked box, the
+# exploration resuming after an empty box
+read -r ACQUIRE TRACK SEGMENT NEAR FINE_STEP BACK DROP RESUME <<< "$($PY -c "from mani_active_vision import envs as e
 print(*e.DQN_FCN_THRESHOLDS, e.FCN_SEGMENT_SIZE, e.DQN_FINE_NEAR_CENTRE, e.DQN_FINE_STEP_SIZE, e.DQN_BACK_WHEN_CLOSE,
-      e.DQN_BOX_HOLD_DROP_CENTRED)")"
+      e.DQN_BOX_HOLD_DROP_CENTRED, e.DQN_EXPLORE_RESUMES_AFTER)")"
 FCN=(--eval-box-source fcn --env.image-size 128 --env.box-hold-steps 20 --env.fcn-acquire-threshold "$ACQUIRE"
     --env.fcn-track-threshold "$TRACK" --env.fcn-segment-size "$SEGMENT" --env.fine-near-centre "$NEAR"
     --env.back-when-close "$BACK" --env.stay-needs-success --env.box-hold-follows-camera
-    --env.box-hold-drop-centred "$DROP" --env.fcn-border-bar-near-box)
+    --env.box-hold-drop-centred "$DROP" --env.fcn-border-bar-near-box --env.explore-resumes-after "$RESUME")
 lanes() {
     LP_NUM_THREADS=1 $PY baselines/seeds.py --preset "$PRESET" --out-dir "$OUT" --seeds 0 2 4 "$@" >/dev/null &
     local first=$!

@@ -39,6 +39,7 @@ from mani_active_vision.box_state import BoxState
 from mani_active_vision.envs import (
     DQN_BACK_WHEN_CLOSE,
     DQN_BOX_HOLD_DROP_CENTRED,
+    DQN_EXPLORE_RESUMES_AFTER,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
@@ -162,6 +163,20 @@ def test_exploration_hands_over_once_the_target_is_seen(tmp_path):
     assert int(explore.act(unseen, {})[0]) == LEFT
     with pytest.raises(ValueError, match="not one of"):
         make_policy("greedy", env)
+
+
+def test_the_exploration_resumes_after_an_empty_box_where_the_env_says_so():
+    env = mav.DiscreteDirections(cached_task(start_pose="search", obs_mode="rgb"), explore_resumes_after=3)
+    explore = ExplorePolicy(
+        env, then=types.SimpleNamespace(act=lambda obs, info: np.array([DOWN]), reset=lambda obs, info: None)
+    )
+    unseen, seen = torch.zeros(1, 4), torch.tensor([[0.4, 0.4, 0.1, 0.1]])
+    explore.reset(unseen, {})
+    acts = [int(explore.act(box, {})[0]) for box in (seen, unseen, unseen, unseen, unseen, seen)]
+    assert acts == [DOWN, DOWN, DOWN, LEFT, LEFT, DOWN]  # 3 empty steps: the orbit again, until the next sighting
+    assert ExplorePolicy(mav.DiscreteDirections(cached_task(start_pose="search", obs_mode="rgb"))).resumes_after == 0
+    with pytest.raises(ValueError, match="explore_resumes_after=-1 must be an integer of at least 0"):
+        mav.EnvConfig(explore_resumes_after=-1)
 
 
 def test_every_policy_acts_in_the_action_space(tmp_path):
@@ -492,6 +507,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         box_hold_follows_camera=True,  # the held box moves with the camera (docs/control.md §25)
         box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,  # and is dropped once centred, unseen (docs/control.md §27)
         fcn_border_bar_near_box=True,  # the border's low bar only near the tracked box (docs/control.md §30)
+        explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,  # the orbit again after an empty box (docs/control.md §31)
     )
     assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused

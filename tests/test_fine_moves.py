@@ -30,6 +30,7 @@ from mani_active_vision.directions import FINE, STAY, action_count, action_names
 from mani_active_vision.envs import (
     DQN_BACK_WHEN_CLOSE,
     DQN_BOX_HOLD_DROP_CENTRED,
+    DQN_EXPLORE_RESUMES_AFTER,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
@@ -109,6 +110,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             box_hold_follows_camera=True,
             box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
             fcn_border_bar_near_box=True,
+            explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,
         )
     )
     no_hold = ship_dqn.ship(
