@@ -31,6 +31,7 @@ from mani_active_vision.agents.recurrent_network import STATE_DIMS, features, lo
 from mani_active_vision.directions import (
     DIRECTIONS,
     FINE,
+    FINE_AREA,
     FINE_NEAR_CENTRE,
     STAY,
     action_count,
@@ -42,25 +43,27 @@ LEFT, RIGHT, FORWARD, BACKWARD, UP, DOWN = (
     DIRECTIONS.index(d) for d in ("left", "right", "forward", "backward", "up", "down")
 )
 STAY_INDEX = action_names(stay_action=True).index(STAY)
-NEAR_AREA = (0.02, 0.25)
+FINE_ZONE = (FINE_NEAR_CENTRE, FINE_AREA[0])
 """Where the env has the fine moves (env.fine_step_size), the servo and the DQN take them near success: the
-target's box covers NEAR_AREA of the image (success needs its own pixels to cover 5%) with its centre within the
-env's `fine_near_centre` of the image's centre (default `directions.FINE_NEAR_CENTRE`, 0.3; success: 0.15). There
-a full step passes over the few views in success; elsewhere (far, off-centre, pushed too close) half steps only
-cost time (docs/control.md §11, §18)."""
+target's box centre within the env's `fine_near_centre` of the image's centre (default `directions.FINE_NEAR_CENTRE`,
+0.3; success: 0.15) and the box covering from the env's `fine_from_area` (default 0.02) up to 0.25 of the image
+(`directions.FINE_AREA`; success needs the target's own pixels to cover 5%). There a full step passes over the few
+views in success; elsewhere (far, off-centre, pushed too close) half steps only cost time (docs/control.md §11,
+§18, §32). The default zone, as (centre, from_area); a policy reads its env's (`fine_zone`)."""
 
 
 BORDER = 1 / 128
 """a box edge this close to the image's (a fraction of its side: one pixel at 128²) touches it"""
 
 
-def near_target(box: np.ndarray, centre: float = FINE_NEAR_CENTRE) -> np.ndarray:
-    """(N,) bool: the boxes (N, 4+) that are near success (`NEAR_AREA`, the centre within `centre` of the image's),
-    where the fine moves are taken."""
+def near_target(box: np.ndarray, zone: tuple[float, float] = FINE_ZONE) -> np.ndarray:
+    """(N,) bool: the boxes (N, 4+) that are near success, where the fine moves are taken: the centre within
+    `zone`'s first number of the image's, the box covering from its second up to `FINE_AREA`'s last (`FINE_ZONE`)."""
+    centre, from_area = zone
     x, y, w, h = box[:, 0], box[:, 1], box[:, 2], box[:, 3]
     area = w * h
     centred = (np.abs(x + w / 2 - 0.5) <= centre) & (np.abs(y + h / 2 - 0.5) <= centre)
-    return (area >= NEAR_AREA[0]) & (area <= NEAR_AREA[1]) & centred
+    return (area >= from_area) & (area <= FINE_AREA[1]) & centred
 
 
 def cut_by_border(box: np.ndarray) -> np.ndarray:
@@ -133,12 +136,13 @@ def rule_out_stay(scores: torch.Tensor, box: np.ndarray, rule: tuple[float, floa
     return scores
 
 
-def fine_near_centre(env) -> float:
-    """The env's `fine_near_centre` (`DiscreteDirections`'; a vector env's first worker's), where its policies
-    take the fine moves; the default for an env without them, where it is never used."""
+def fine_zone(env) -> tuple[float, float]:
+    """The env's `fine_near_centre` and `fine_from_area` (`DiscreteDirections`'; a vector env's first worker's),
+    where its policies take the fine moves (`near_target`); the default for an env without them, where it is never
+    used."""
     if num_actions(env) <= len(DIRECTIONS) + 1:
-        return FINE_NEAR_CENTRE
-    return float(directions_option(env, "fine_near_centre"))
+        return FINE_ZONE
+    return float(directions_option(env, "fine_near_centre")), float(directions_option(env, "fine_from_area"))
 
 
 def box_array(obs) -> np.ndarray:
@@ -216,8 +220,8 @@ class ActionMap:
     success (`near_target`). `to_env` and `to_env_full` are the two tables (`env_actions`); `to_policy` maps each
     env action back to the policy's (a fine move to its direction), for a learner that stores its own actions."""
 
-    def __init__(self, policy_actions: int, env_actions_count: int, near_centre: float = FINE_NEAR_CENTRE):
-        self.near_centre = near_centre
+    def __init__(self, policy_actions: int, env_actions_count: int, zone: tuple[float, float] = FINE_ZONE):
+        self.zone = zone
         self.to_env = env_actions(policy_actions, env_actions_count)
         self.to_env_full = env_actions(policy_actions, env_actions_count, fine=False)
         self.fine = not np.array_equal(self.to_env, self.to_env_full)
@@ -227,7 +231,7 @@ class ActionMap:
     def __call__(self, action: np.ndarray, obs) -> np.ndarray:
         if not self.fine:  # no fine moves in the env: nothing to decide per step
             return self.to_env_full[action]
-        return np.where(near_target(box_array(obs), self.near_centre), self.to_env[action], self.to_env_full[action])
+        return np.where(near_target(box_array(obs), self.zone), self.to_env[action], self.to_env_full[action])
 
 
 def rule_out_refused(q: torch.Tensor, refused: np.ndarray, last_action: np.ndarray) -> torch.Tensor:
@@ -355,7 +359,7 @@ class ServoPolicy:
         self.num_envs = env.unwrapped.num_envs
         names = action_names_for(num_actions(env))
         self.fine_offset = names.index(FINE[0]) if fine and FINE[0] in names else 0  # FINE is in DIRECTIONS' order
-        self.near_centre = fine_near_centre(env)
+        self.zone = fine_zone(env)
         self.center_tol = center_tol
         lead_in = look_over if lead_in is None else lead_in
         first = DIRECTIONS.index(first_sweep)
@@ -397,7 +401,7 @@ class ServoPolicy:
         action[~served] = sweep[~served]
         self.last_action[:] = action
         if self.fine_offset:
-            action[served & near_target(box, self.near_centre)] += self.fine_offset
+            action[served & near_target(box, self.zone)] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
         return action.astype(np.int64)
@@ -496,7 +500,7 @@ class DQNPolicy:
         self.avoid_refused = bool(self.config.get("avoid_refused", avoid_refused))
         self.last_action = np.full(self.num_envs, -1)
         self.num_actions = self.q_network.num_actions
-        self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
+        self.action_map = ActionMap(self.num_actions, num_actions(env), fine_zone(env))
         self.back_when_close = back_when_close(env)
         self.stay_rule = stay_rule(env, self.num_actions)
         state_dim = box_array(env.observation_space.sample()).shape[-1] + (
@@ -552,7 +556,7 @@ class MemoryPolicy:
         self.agent, self.config = (agent, {}) if agent is not None else load_agent(checkpoint)
         self.num_envs = env.unwrapped.num_envs
         self.num_actions = self.agent.num_actions
-        self.action_map = ActionMap(self.num_actions, num_actions(env), fine_near_centre(env))
+        self.action_map = ActionMap(self.num_actions, num_actions(env), fine_zone(env))
         box_dim = box_array(env.observation_space.sample()).shape[-1]
         if box_dim not in STATE_DIMS:
             raise ValueError(

@@ -71,7 +71,7 @@ from mani_active_vision.agents.policies import (
     ActionMap,
     ServoPolicy,
     box_array,
-    fine_near_centre,
+    fine_zone,
     in_success_with_margin,
     info_flags,
     margin_limits,
@@ -312,7 +312,7 @@ def learner_actions(env) -> ActionMap:
     when deployed; so the learner and its teacher keep seven actions and learn the half steps' dynamics."""
     env_count = num_actions(env)
     policy_count = env_count - len(FINE) if env_count > len(DIRECTIONS) + 1 else env_count
-    return ActionMap(policy_count, env_count, fine_near_centre(env))
+    return ActionMap(policy_count, env_count, fine_zone(env))
 
 
 class Collector:

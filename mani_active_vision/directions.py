@@ -30,6 +30,13 @@ for a policy to take the fine moves there (`DiscreteDirections.fine_near_centre`
 default is the one every agent learned with; the shipped DQNs are deployed at `envs.DQN_FINE_NEAR_CENTRE`
 (docs/control.md §11, §18)."""
 
+FINE_AREA = (0.02, 0.25)
+"""The share of the image the target's box covers where a policy takes the fine moves (with its centre near the
+image centre, `FINE_NEAR_CENTRE`): from `DiscreteDirections.fine_from_area` (default the first number, the one
+every agent learned with; success needs the target's own pixels to cover 5%) up to the second. Farther out the
+full step does not pass over a view in success, closer in a push has left the target too close (docs/control.md
+§11, §32)."""
+
 
 def action_names(stay_action: bool = False, fine_actions: bool = False) -> tuple[str, ...]:
     """The actions' names in index order: the six directions, then `stay` if enabled, then the six fine moves
@@ -105,8 +112,9 @@ class DiscreteDirections(gym.ActionWrapper):
 
     Each direction is turned into the Cartesian step from the controller's current target, so that orbit
     steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
-    `fine_near_centre` is where policies take the fine moves (`agents.policies.near_target`): it is kept here,
-    with the moves, so that a policy reads it from the env it acts in (`agents.policies.fine_near_centre`), as
+    `fine_near_centre` and `fine_from_area` are where policies take the fine moves (`agents.policies.near_target`):
+    they are kept here, with the moves, so that a policy reads them from the env it acts in
+    (`agents.policies.fine_zone`), as
     it reads `back_when_close` (`agents.policies.too_close`), `stay_needs_success` (`agents.policies.stay_rule`)
     and `explore_resumes_after` (`agents.policies.ExplorePolicy`).
     """
@@ -117,6 +125,7 @@ class DiscreteDirections(gym.ActionWrapper):
         stay_action: bool = False,
         fine_step: float = 0.0,
         fine_near_centre: float = FINE_NEAR_CENTRE,
+        fine_from_area: float = FINE_AREA[0],
         back_when_close: float = 0.0,
         stay_needs_success: bool = False,
         explore_resumes_after: int = 0,
@@ -133,6 +142,11 @@ class DiscreteDirections(gym.ActionWrapper):
             raise ValueError(
                 f"fine_near_centre={fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
             )
+        if not 0 < fine_from_area < FINE_AREA[1]:
+            raise ValueError(
+                f"fine_from_area={fine_from_area!r} must be in (0, {FINE_AREA[1]}): a share of the image covered by the box"
+            )
+        self.fine_from_area = fine_from_area
         if not 0 <= back_when_close <= 1:
             raise ValueError(f"back_when_close={back_when_close!r} must be in [0, 1] (0: off): a share of the image")
         self.fine_step, self.fine_near_centre, self.back_when_close = fine_step, fine_near_centre, back_when_close

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mani_active_vision.tasks.active_vision_find  # noqa: F401  (registers ActiveVisionFind-v0)
 from mani_active_vision.agents.fcn import load_pretrained
 from mani_active_vision.box_state import BOX_SOURCES, BoxState
-from mani_active_vision.directions import FINE_NEAR_CENTRE, DiscreteDirections
+from mani_active_vision.directions import FINE_AREA, FINE_NEAR_CENTRE, DiscreteDirections
 
 ENV_ID = "ActiveVisionFind-v0"
 BOX_SOURCE_CHOICES = (*BOX_SOURCES, "none")
@@ -53,6 +53,12 @@ DQN_FINE_NEAR_CENTRE = 0.2
 within 0.2 of the image centre (0.3 in training). A push leaves the target off centre, and at half steps the way
 back does not fit in 20 steps; with the full step there, recovery after a 6-step push rises from 0.86 to 0.92 for
 the shipped preset's five networks (docs/control.md §18)."""
+
+DQN_FINE_FROM_AREA = 0.045
+"""`EnvConfig.fine_from_area` where the shipped DQNs are deployed: the fine moves once the box covers 4.5% of the
+image (2% in training). From 2% the approach takes half steps long before a full step could pass over a view in
+success; from 4.5% the five networks reach success about 3 steps sooner (SPL +0.04 on four sets), success the same;
+from 6% some small targets are passed over again (docs/control.md §32)."""
 
 DQN_BACK_WHEN_CLOSE = 0.2
 """`EnvConfig.back_when_close` where the shipped DQNs are deployed: a step backward (zoom out) while the box is cut
@@ -159,6 +165,10 @@ class EnvConfig:
     """with fine_step_size, how far the target's box centre may lie from the image centre (in x and in y, a
     fraction of the side) for the policies to take the fine moves (`agents.policies.near_target`); the shipped
     DQNs are deployed at DQN_FINE_NEAR_CENTRE (docs/control.md §18)"""
+    fine_from_area: float = FINE_AREA[0]
+    """with fine_step_size, the share of the image the target's box must cover for the policies to take the fine
+    moves (up to `directions.FINE_AREA`'s 0.25; `agents.policies.near_target`); the shipped DQNs are deployed at
+    DQN_FINE_FROM_AREA (docs/control.md §32)"""
     back_when_close: float = 0.0
     """0: off; > 0: a DQN policy steps backward (zoom out) instead of its choice while the box, seen this step (not
     held), touches the image's border and covers at least this share of the image (`agents.policies.too_close`); the
@@ -229,6 +239,10 @@ class EnvConfig:
             raise ValueError(
                 f"fine_near_centre={self.fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
             )
+        if not 0 < self.fine_from_area < FINE_AREA[1]:
+            raise ValueError(
+                f"fine_from_area={self.fine_from_area!r} must be in (0, {FINE_AREA[1]}): a share of the image covered by the box"
+            )
         if not 0 <= self.back_when_close <= 1:
             raise ValueError(
                 f"back_when_close={self.back_when_close!r} must be in [0, 1] (0: off): a share of the image"
@@ -280,16 +294,18 @@ class EnvConfig:
     def as_dqn_deployed(self) -> EnvConfig:
         """This config as the shipped DQNs are deployed: on the FCN's box (`on_fcn_box`) with the verifier's bars
         `DQN_FCN_THRESHOLDS`, the network segmenting at `FCN_SEGMENT_SIZE`, and the fine moves
-        (`DQN_FINE_STEP_SIZE`) within `DQN_FINE_NEAR_CENTRE` of the image centre, and a step back when the box is
+        (`DQN_FINE_STEP_SIZE`) within `DQN_FINE_NEAR_CENTRE` of the image centre once the box covers
+        `DQN_FINE_FROM_AREA` of the image, and a step back when the box is
         cut and `DQN_BACK_WHEN_CLOSE` of the image or more, and `stay` only where the mask stats say success (where the
         state has them to judge by; every preset with `stay` does), and the held box moving with the camera and
         dropped once centred and unseen for `DQN_BOX_HOLD_DROP_CENTRED` steps, and the border's low bar only near the
         tracked box, and the exploration resuming after `DQN_EXPLORE_RESUMES_AFTER` steps of an empty box
-        (docs/control.md §12, §17–§21, §25, §27, §30, §31)."""
+        (docs/control.md §12, §17–§21, §25, §27, §30–§32)."""
         return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
+            fine_from_area=DQN_FINE_FROM_AREA,
             back_when_close=DQN_BACK_WHEN_CLOSE,
             stay_needs_success=self.with_mask_stats,
             box_hold_follows_camera=True,
@@ -313,6 +329,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         stay_action=config.stay_action,
         fine_step=config.fine_step_size,
         fine_near_centre=config.fine_near_centre,
+        fine_from_area=config.fine_from_area,
         back_when_close=config.back_when_close,
         stay_needs_success=config.stay_needs_success,
         explore_resumes_after=config.explore_resumes_after,

@@ -41,6 +41,7 @@ from mani_active_vision.envs import (
     DQN_BOX_HOLD_DROP_CENTRED,
     DQN_EXPLORE_RESUMES_AFTER,
     DQN_FCN_THRESHOLDS,
+    DQN_FINE_FROM_AREA,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
     FCN_BOX_HOLD_STEPS,
@@ -502,6 +503,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         fcn_track_threshold=track,
         fcn_segment_size=FCN_SEGMENT_SIZE,  # the network segments the camera's own 128² (docs/control.md §17)
         fine_near_centre=DQN_FINE_NEAR_CENTRE,  # the fine moves only close to the centre (docs/control.md §18)
+        fine_from_area=DQN_FINE_FROM_AREA,  # and only once the box covers 4.5% of the image (§32)
         back_when_close=DQN_BACK_WHEN_CLOSE,  # a step back when pushed too close (docs/control.md §19)
         stay_needs_success=True,  # stay only where the mask stats say success (docs/control.md §21)
         box_hold_follows_camera=True,  # the held box moves with the camera (docs/control.md §25)

@@ -17,7 +17,7 @@ from mani_active_vision.agents.policies import (
     ServoPolicy,
     back_when_close,
     env_actions,
-    fine_near_centre,
+    fine_zone,
     looks_in_success,
     make_policy,
     stay_needs_success,
@@ -32,6 +32,7 @@ from mani_active_vision.envs import (
     DQN_BOX_HOLD_DROP_CENTRED,
     DQN_EXPLORE_RESUMES_AFTER,
     DQN_FCN_THRESHOLDS,
+    DQN_FINE_FROM_AREA,
     DQN_FINE_NEAR_CENTRE,
     DQN_FINE_STEP_SIZE,
     FCN_SEGMENT_SIZE,
@@ -105,6 +106,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             fcn_segment_size=FCN_SEGMENT_SIZE,
             fine_step_size=DQN_FINE_STEP_SIZE,
             fine_near_centre=DQN_FINE_NEAR_CENTRE,
+            fine_from_area=DQN_FINE_FROM_AREA,
             back_when_close=DQN_BACK_WHEN_CLOSE,
             stay_needs_success=True,
             box_hold_follows_camera=True,
@@ -143,16 +145,18 @@ def test_the_servo_serves_with_the_fine_moves_and_sweeps_with_the_full_step():
         assert act(servo, [0.4, 0.65, 0.2, 0.2]) == (fine_down if fine else DOWN)  # 0.25 below the centre: near
 
 
-def test_the_policies_take_the_fine_moves_within_the_envs_fine_near_centre():
-    """The zone of the fine moves is the env's (`EnvConfig.fine_near_centre`): a box 0.25 below the centre is near
-    success at the default 0.3, not at the deployed DQNs' 0.2, for the servo and for a DQN alike."""
+def test_the_policies_take_the_fine_moves_within_the_envs_fine_zone():
+    """The zone of the fine moves is the env's (`EnvConfig.fine_near_centre`, `fine_from_area`): a box of 4% of the
+    image 0.25 below the centre is near success at the defaults (0.3, 2%), not at a centre of 0.2 nor from 6% of the
+    image, for the servo and for a DQN alike."""
     low = torch.tensor([[0.4, 0.65, 0.2, 0.2]])
     names = action_names_for(13)
-    for centre, expected in ((0.3, names.index("down_fine")), (0.2, DOWN)):
-        env = BoxState(
-            mav.DiscreteDirections(cached_task(start_pose="search"), True, fine_step=0.025, fine_near_centre=centre)
+    for zone, expected in (((0.3, 0.02), names.index("down_fine")), ((0.2, 0.02), DOWN), ((0.3, 0.06), DOWN)):
+        directions = mav.DiscreteDirections(
+            cached_task(start_pose="search"), True, fine_step=0.025, fine_near_centre=zone[0], fine_from_area=zone[1]
         )
-        assert fine_near_centre(env) == centre
+        env = BoxState(directions)
+        assert fine_zone(env) == zone
         servo = ServoPolicy(env)
         servo.reset(None, {})
         assert int(servo.act(low, {"refused": torch.tensor([False])})[0]) == expected
@@ -165,6 +169,8 @@ def test_the_policies_take_the_fine_moves_within_the_envs_fine_near_centre():
         assert int(policy.act(low, {})[0]) == expected
     with pytest.raises(ValueError, match=r"fine_near_centre=0.0 must be in \(0, 0.5\]"):
         EnvConfig(fine_near_centre=0.0)
+    with pytest.raises(ValueError, match=r"fine_from_area=0.3 must be in \(0, 0.25\): a share of the image"):
+        EnvConfig(fine_from_area=0.3)
 
 
 def test_a_dqn_steps_back_where_the_env_says_the_box_is_too_close():

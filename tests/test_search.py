@@ -37,7 +37,7 @@ from mani_active_vision.agents.recurrent_network import (
     load_agent,
     save_agent,
 )
-from mani_active_vision.directions import FINE_NEAR_CENTRE
+from mani_active_vision.directions import FINE_AREA, FINE_NEAR_CENTRE
 from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, FCN_IMAGE_SIZE, EnvConfig
 from mani_active_vision.evaluation.protocol import evaluate
 
@@ -320,7 +320,7 @@ def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
 
 
 def test_in_an_env_with_the_fine_moves_the_learner_and_its_teachers_keep_seven_actions():
-    zone = {"fine_near_centre": FINE_NEAR_CENTRE}.__getitem__  # DiscreteDirections' attribute, as policies read it
+    zone = {"fine_near_centre": FINE_NEAR_CENTRE, "fine_from_area": FINE_AREA[0]}.__getitem__  # as policies read them
     fine_env = types.SimpleNamespace(
         unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(13), get_wrapper_attr=zone
     )
