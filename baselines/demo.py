@@ -11,8 +11,8 @@ look-alike objects, failed), then evaluates the greedy agent (exploration, then 
 evaluation seeds (unseen objects) acting on the box from the shipped FCN at 128² (`envs.FCN_IMAGE_SIZE`), held
 through its misses (`envs.FCN_BOX_HOLD_STEPS`), segmenting the camera's frame at its own 128²
 (`envs.FCN_SEGMENT_SIZE`), with half steps close to the target (`envs.DQN_FINE_STEP_SIZE`,
-`envs.DQN_FINE_NEAR_CENTRE`, `envs.DQN_FINE_FROM_AREA`), a step back when too close (`envs.DQN_BACK_WHEN_CLOSE`), `stay` only in success and
-the held box moving with the camera — as deployed,
+`envs.DQN_FINE_NEAR_CENTRE`, `envs.DQN_FINE_FROM_AREA`), a step back when too close (`envs.DQN_BACK_WHEN_CLOSE`),
+`stay` only in success and the held box moving with the camera — as deployed,
 `EnvConfig.as_dqn_deployed` — and on the ground-truth box,
 records the first FCN episodes to a Rerun file, prints the tables and where everything was written. It then
 evaluates the shipped agent (`agents/weights/dqn.pt`, scripts/make_dqn.sh) as deployed, on the FCN's box and

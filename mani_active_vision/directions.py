@@ -33,9 +33,8 @@ default is the one every agent learned with; the shipped DQNs are deployed at `e
 FINE_AREA = (0.02, 0.25)
 """The share of the image the target's box covers where a policy takes the fine moves (with its centre near the
 image centre, `FINE_NEAR_CENTRE`): from `DiscreteDirections.fine_from_area` (default the first number, the one
-every agent learned with; success needs the target's own pixels to cover 5%) up to the second. Farther out the
-full step does not pass over a view in success, closer in a push has left the target too close (docs/control.md
-§11, §32)."""
+every agent learned with; success needs the target's own pixels to cover 5%) up to the second. Farther out a full
+step does not pass over a view in success; a larger box is a target pushed too close (docs/control.md §11, §32)."""
 
 
 def action_names(stay_action: bool = False, fine_actions: bool = False) -> tuple[str, ...]:
@@ -114,9 +113,8 @@ class DiscreteDirections(gym.ActionWrapper):
     steps stay on their circle exactly. The step length is the task's `step_size` (`fine_step` for `FINE`).
     `fine_near_centre` and `fine_from_area` are where policies take the fine moves (`agents.policies.near_target`):
     they are kept here, with the moves, so that a policy reads them from the env it acts in
-    (`agents.policies.fine_zone`), as
-    it reads `back_when_close` (`agents.policies.too_close`), `stay_needs_success` (`agents.policies.stay_rule`)
-    and `explore_resumes_after` (`agents.policies.ExplorePolicy`).
+    (`agents.policies.fine_zone`), as it reads `back_when_close` (`agents.policies.too_close`),
+    `stay_needs_success` (`agents.policies.stay_rule`) and `explore_resumes_after` (`agents.policies.ExplorePolicy`).
     """
 
     def __init__(
