@@ -37,7 +37,7 @@ The preset `hold` (`HOLD`) is `shaped` without the episode end at success: the b
 success, then `hold_reward` 0.2 for every later step in success, so that keeping the target in focus pays
 (shaped ends at success, so it never learns to stay).
 `demo_episodes` lets the scripted servo act the first training episodes (with env.stay_action it also stays
-in success), its transitions stored as the learner's; `demo_margin` adds DQfD's supervised margin loss on them.
+in success), its transitions stored as the learner's; `demo_margin` adds DQfD's supervised margin loss on them (`demo_margin_steps`: only on their first steps).
 Evaluation is always on the task as it is (no episode end at success, the env's own reward).
 
 `--num-envs N` collects from N `make_vec_env` worker processes, one training episode each per round (the same
@@ -153,6 +153,10 @@ class Args:
     demo_margin: float = 0.0
     """DQfD's large-margin loss on the demonstrations (Hester et al. 2018; they use 0.8): the servo's action
     must be valued this much above every other, a supervised term added to the TD loss (0: off)"""
+    demo_margin_steps: int = 0
+    """with demo_margin: the margin only on a demonstration's first this many steps after the exploration's hand-over
+    (the servo's centring and first approach, where the learner was slowest; its holding and late corrections are
+    then learnt from the TD loss alone; docs/control.md §33). 0: on all of its steps"""
     hold_reward: float = 0.0
     """added to the reward of every later step in success: time in success pays, so that a learner whose
     episodes go on past success learns to keep it (not in the paper; needs end_at_success off)"""
@@ -248,7 +252,8 @@ def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
 
 class ReplayBuffer:
     """A ring buffer of (state, action, reward, next_state, terminated, steps, demo) transitions; `steps` is
-    how many env steps the reward sums (1, or up to n for n-step returns), `demo` marks the servo's."""
+    how many env steps the reward sums (1, or up to n for n-step returns), `demo` marks the servo's that DQfD's
+    margin applies to (`margin_applies`)."""
 
     def __init__(self, capacity: int, state_dim: int):
         self.states = np.zeros((capacity, state_dim), np.float32)
@@ -335,6 +340,14 @@ def margin_loss(q_network: QNetwork, batch: dict, margin: float) -> torch.Tensor
     expert = batch["actions"][demo]
     penalty = margin * (1.0 - F.one_hot(expert, q.shape[-1]).float())
     return ((q + penalty).max(-1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
+
+
+def margin_applies(args: Args, demo: bool, learner_step: int, steps: int) -> bool:
+    """Whether DQfD's margin applies to a transition of `steps` env steps that an NStepWindow gave out at the learner's
+    step `learner_step` of its episode (0: the exploration's hand-over): a demonstration's, and with
+    demo_margin_steps only one that starts within its first steps."""
+    first_step = learner_step - steps + 1
+    return bool(demo) and (args.demo_margin_steps == 0 or first_step < args.demo_margin_steps)
 
 
 @functools.cache
@@ -581,6 +594,10 @@ def train(args: Args, progress: bool = True) -> dict:
         )
     if args.end_learning_rate < 0:
         raise ValueError(f"end_learning_rate={args.end_learning_rate} must be ≥ 0 (0: constant learning_rate)")
+    if args.demo_margin_steps < 0:
+        raise ValueError(
+            f"demo_margin_steps={args.demo_margin_steps} must be ≥ 0 (0: the margin on every demonstration step)"
+        )
     if args.fine_as_deployed and not args.env.fine_step_size:
         raise ValueError("fine_as_deployed maps the fine moves onto the six directions: set env.fine_step_size > 0")
     if args.look_over and not args.explore:
@@ -712,7 +729,8 @@ def train(args: Args, progress: bool = True) -> dict:
                         stored = to_network[action[i]]
                         ready = windows[i].push(states[i], stored, reward_now, next_states[i], ended, done)
                         for s0, a0, discounted, s_n, final, steps in ready:
-                            buffer.add(s0, a0, discounted, s_n, final, steps, mixed.demo[i])
+                            margin = margin_applies(args, mixed.demo[i], learner_steps[i], steps)
+                            buffer.add(s0, a0, discounted, s_n, final, steps, margin)
                             if args.mirror_augment:
                                 mirrored = (
                                     mirror_state(s0, *mirrored_layout),
@@ -720,7 +738,7 @@ def train(args: Args, progress: bool = True) -> dict:
                                     discounted,
                                     mirror_state(s_n, *mirrored_layout),
                                 )
-                                buffer.add(*mirrored, final, steps, mixed.demo[i])
+                                buffer.add(*mirrored, final, steps, margin)
                         learner_steps[i] += 1
                     running[i] = not done
                     global_step += 1  # the updates follow the env steps of the episodes, whatever the env count

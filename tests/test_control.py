@@ -377,6 +377,19 @@ def test_margin_loss_is_zero_once_the_demonstrators_action_leads_by_the_margin()
     assert dqn.margin_loss(q_network, {**batch, "demo": torch.zeros(4, dtype=torch.bool)}, 0.8).item() == 0
 
 
+def test_the_margin_only_on_a_demonstrations_first_steps():
+    args = dqn.Args(demo_margin=0.8, demo_margin_steps=2)
+    window, marked = dqn.NStepWindow(n=3, gamma=0.9), {}
+    for step in range(6):  # as train() stores them: 3-step transitions, the tails flushed at the episode's end
+        for first, *_, steps in window.push(step, 0, 0.0, step + 1, False, step == 5):
+            marked[first] = dqn.margin_applies(args, True, step, steps)
+    assert marked == {0: True, 1: True, 2: False, 3: False, 4: False, 5: False}
+    assert not dqn.margin_applies(args, False, 2, 3)  # the learner's own steps never
+    assert dqn.margin_applies(dqn.Args(demo_margin=0.8), True, 60, 3)  # 0: every demonstration step
+    with pytest.raises(ValueError, match="demo_margin_steps=-1"):
+        dqn.train(dqn.Args(demo_margin_steps=-1), progress=False)
+
+
 def test_the_holding_servo_stays_in_success_only():
     env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(7))
     servo = make_policy("servo", env, hold=True)
