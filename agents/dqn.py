@@ -37,7 +37,8 @@ The preset `hold` (`HOLD`) is `shaped` without the episode end at success: the b
 success, then `hold_reward` 0.2 for every later step in success, so that keeping the target in focus pays
 (shaped ends at success, so it never learns to stay).
 `demo_episodes` lets the scripted servo act the first training episodes (with env.stay_action it also stays
-in success), its transitions stored as the learner's; `demo_margin` adds DQfD's supervised margin loss on them (`demo_margin_steps`: only on their first steps).
+in success), its transitions stored as the learner's; `demo_margin` adds DQfD's supervised margin loss on them
+(`demo_margin_steps`: only on their first steps).
 Evaluation is always on the task as it is (no episode end at success, the env's own reward).
 
 `--num-envs N` collects from N `make_vec_env` worker processes, one training episode each per round (the same
