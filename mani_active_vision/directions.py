@@ -144,10 +144,10 @@ class DiscreteDirections(gym.ActionWrapper):
             raise ValueError(
                 f"fine_from_area={fine_from_area!r} must be in (0, {FINE_AREA[1]}): a share of the image covered by the box"
             )
-        self.fine_from_area = fine_from_area
         if not 0 <= back_when_close <= 1:
             raise ValueError(f"back_when_close={back_when_close!r} must be in [0, 1] (0: off): a share of the image")
-        self.fine_step, self.fine_near_centre, self.back_when_close = fine_step, fine_near_centre, back_when_close
+        self.fine_step, self.fine_near_centre, self.fine_from_area = fine_step, fine_near_centre, fine_from_area
+        self.back_when_close = back_when_close
         if not (isinstance(explore_resumes_after, int) and explore_resumes_after >= 0):
             raise ValueError(
                 f"explore_resumes_after={explore_resumes_after!r} must be an integer of at least 0 (0: never)"

@@ -5,8 +5,9 @@
 # moves near the target (envs.DQN_FINE_STEP_SIZE): on the ground-truth box (64²), then on the FCN's box (128², the
 # box held 20 steps through the FCN's misses, the verifier's bars envs.DQN_FCN_THRESHOLDS, the network segmenting the
 # camera's 128², envs.FCN_SEGMENT_SIZE: §17, the fine moves only within envs.DQN_FINE_NEAR_CENTRE of the image
-# centre: §18, and from envs.DQN_FINE_FROM_AREA of the image: §32, a step back when pushed too close, envs.DQN_BACK_WHEN_CLOSE: §19, `stay` only where the mask stats say
-# success: §21, the held box moving with the camera: §25; EnvConfig.as_dqn_deployed), the scripted servo beside
+# centre: §18, and from envs.DQN_FINE_FROM_AREA of the image: §32, a step back when pushed too close,
+# envs.DQN_BACK_WHEN_CLOSE: §19, `stay` only where the mask stats say success: §21, the held box moving with the
+# camera: §25; EnvConfig.as_dqn_deployed), the scripted servo beside
 # them. FULL_STEP=1 first evaluates both without the fine moves too (the full step only: §9's figures).
 # Two lanes of baselines/seeds.py, one per core with one render thread each (each lane evaluates the servo once
 # per box: neither has cached it until it finishes). Finished runs and evaluations under $OUT are skipped on a

@@ -4,8 +4,9 @@
 # ~2-3 min on 2 cores), ship it as deployed (FCN box held through its misses, unseen objects, 128²:
 # baselines/ship_dqn.py --as-dqn, EnvConfig.as_dqn_deployed: the verifier bars of envs.DQN_FCN_THRESHOLDS, 0.97 to
 # acquire a region, 0.9 to keep it; the fine moves of envs.DQN_FINE_STEP_SIZE, half steps near the target, within
-# envs.DQN_FINE_NEAR_CENTRE of the image centre and from envs.DQN_FINE_FROM_AREA of the image; a step back when pushed too close, envs.DQN_BACK_WHEN_CLOSE; `stay`
-# only where the mask stats say success, EnvConfig.stay_needs_success; the held box moving with the camera,
+# envs.DQN_FINE_NEAR_CENTRE of the image centre and from envs.DQN_FINE_FROM_AREA of the image; a step back when
+# pushed too close, envs.DQN_BACK_WHEN_CLOSE; `stay` only where the mask stats say success,
+# EnvConfig.stay_needs_success; the held box moving with the camera,
 # EnvConfig.box_hold_follows_camera, and dropped once centred and unseen, envs.DQN_BOX_HOLD_DROP_CENTRED; the verifier's
 # low bar for regions cut by the border only near the tracked box, EnvConfig.fcn_border_bar_near_box; the exploration
 # resuming after an empty box, envs.DQN_EXPLORE_RESUMES_AFTER; and the FCN segmenting the camera's frame at its own
