@@ -104,6 +104,31 @@ class _Frame:
         return up if name == "up" else -up
 
 
+def check_direction_options(
+    step_size: float,
+    fine_step: float,
+    fine_near_centre: float,
+    fine_from_area: float,
+    back_when_close: float,
+    explore_resumes_after: int,
+    fine_step_name: str = "fine_step",
+) -> None:
+    """A `ValueError` naming the bad value and the valid range for `DiscreteDirections`' options; `EnvConfig` checks
+    its own with the same rules (its fine step is called `fine_step_size`: `fine_step_name`)."""
+    if not 0 <= fine_step < step_size:
+        raise ValueError(f"{fine_step_name}={fine_step!r} must be in [0, step_size={step_size}) (0: no fine moves)")
+    if not 0 < fine_near_centre <= 0.5:
+        raise ValueError(f"fine_near_centre={fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre")
+    if not 0 < fine_from_area < FINE_AREA[1]:
+        raise ValueError(
+            f"fine_from_area={fine_from_area!r} must be in (0, {FINE_AREA[1]}): a share of the image covered by the box"
+        )
+    if not 0 <= back_when_close <= 1:
+        raise ValueError(f"back_when_close={back_when_close!r} must be in [0, 1] (0: off): a share of the image")
+    if not (isinstance(explore_resumes_after, int) and explore_resumes_after >= 0):
+        raise ValueError(f"explore_resumes_after={explore_resumes_after!r} must be an integer of at least 0 (0: never)")
+
+
 class DiscreteDirections(gym.ActionWrapper):
     """`Discrete(6)` actions (`MultiDiscrete` for batched envs), indices into `DIRECTIONS`; with
     `stay_action`, `Discrete(7)`: index 6 is `stay`; with `fine_step` > 0 the six `FINE` moves follow
@@ -134,24 +159,11 @@ class DiscreteDirections(gym.ActionWrapper):
             raise ValueError(f"DiscreteDirections needs control_mode='pd_ee_delta_pos', got {base.control_mode!r}")
         self.num_envs = base.num_envs
         self._batched = len(env.action_space.shape) == 2
-        if not 0 <= fine_step < base.step_size:
-            raise ValueError(f"fine_step={fine_step!r} must be in [0, step_size={base.step_size}) (0: no fine moves)")
-        if not 0 < fine_near_centre <= 0.5:
-            raise ValueError(
-                f"fine_near_centre={fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
-            )
-        if not 0 < fine_from_area < FINE_AREA[1]:
-            raise ValueError(
-                f"fine_from_area={fine_from_area!r} must be in (0, {FINE_AREA[1]}): a share of the image covered by the box"
-            )
-        if not 0 <= back_when_close <= 1:
-            raise ValueError(f"back_when_close={back_when_close!r} must be in [0, 1] (0: off): a share of the image")
+        check_direction_options(
+            base.step_size, fine_step, fine_near_centre, fine_from_area, back_when_close, explore_resumes_after
+        )
         self.fine_step, self.fine_near_centre, self.fine_from_area = fine_step, fine_near_centre, fine_from_area
         self.back_when_close = back_when_close
-        if not (isinstance(explore_resumes_after, int) and explore_resumes_after >= 0):
-            raise ValueError(
-                f"explore_resumes_after={explore_resumes_after!r} must be an integer of at least 0 (0: never)"
-            )
         self.stay_needs_success, self.explore_resumes_after = stay_needs_success, explore_resumes_after
         self.names = action_names(stay_action, fine_step > 0)
         n = len(self.names)

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mani_active_vision.tasks.active_vision_find  # noqa: F401  (registers ActiveVisionFind-v0)
 from mani_active_vision.agents.fcn import load_pretrained
 from mani_active_vision.box_state import BOX_SOURCES, BoxState
-from mani_active_vision.directions import FINE_AREA, FINE_NEAR_CENTRE, DiscreteDirections
+from mani_active_vision.directions import FINE_AREA, FINE_NEAR_CENTRE, DiscreteDirections, check_direction_options
 
 ENV_ID = "ActiveVisionFind-v0"
 BOX_SOURCE_CHOICES = (*BOX_SOURCES, "none")
@@ -227,26 +227,15 @@ class EnvConfig:
                 "fcn_border_bar_near_box restricts the verifier's low bar to the tracked box: on the FCN's box it "
                 "needs fcn_acquire_threshold or fcn_track_threshold set, which track it (got 0.0, 0.0)"
             )
-        if not (isinstance(self.explore_resumes_after, int) and self.explore_resumes_after >= 0):
-            raise ValueError(
-                f"explore_resumes_after={self.explore_resumes_after!r} must be an integer of at least 0 (0: never)"
-            )
-        if not 0 <= self.fine_step_size < self.step_size:
-            raise ValueError(
-                f"fine_step_size={self.fine_step_size!r} must be in [0, step_size={self.step_size}) (0: no fine moves)"
-            )
-        if not 0 < self.fine_near_centre <= 0.5:
-            raise ValueError(
-                f"fine_near_centre={self.fine_near_centre!r} must be in (0, 0.5]: a distance from the image centre"
-            )
-        if not 0 < self.fine_from_area < FINE_AREA[1]:
-            raise ValueError(
-                f"fine_from_area={self.fine_from_area!r} must be in (0, {FINE_AREA[1]}): a share of the image covered by the box"
-            )
-        if not 0 <= self.back_when_close <= 1:
-            raise ValueError(
-                f"back_when_close={self.back_when_close!r} must be in [0, 1] (0: off): a share of the image"
-            )
+        check_direction_options(
+            self.step_size,
+            self.fine_step_size,
+            self.fine_near_centre,
+            self.fine_from_area,
+            self.back_when_close,
+            self.explore_resumes_after,
+            fine_step_name="fine_step_size",
+        )
         if self.stay_needs_success and self.stay_action and not self.with_mask_stats:
             raise ValueError("stay_needs_success judges success from the mask stats: it needs with_mask_stats=True")
         if not (isinstance(self.max_episode_steps, int) and self.max_episode_steps >= 1):
