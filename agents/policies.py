@@ -89,7 +89,8 @@ def looks_in_success(box: np.ndarray, success_fraction: float, center_tol: float
 
 
 def directions_option(env, name: str):
-    """An option of the env's `DiscreteDirections` (a vector env's first worker's), as its policies read it."""
+    """An option of the env's wrappers (`DiscreteDirections`, `BoxState`; a vector env's first worker's), as its
+    policies read it."""
     return env.get_wrapper_attr(name) if hasattr(env, "get_wrapper_attr") else env.get_attr(name)[0]
 
 
@@ -107,6 +108,14 @@ def explore_resumes_after(env) -> int:
         return int(directions_option(env, "explore_resumes_after"))
     except AttributeError:
         return 0
+
+
+def candidate_threshold(env) -> float:
+    """The env's `BoxState.candidate_threshold`: > 0 where it reports candidates (0 where it has none)."""
+    try:
+        return float(directions_option(env, "candidate_threshold"))
+    except AttributeError:
+        return 0.0
 
 
 def stay_needs_success(env) -> bool:
@@ -326,6 +335,44 @@ class Sweep:
         return action
 
 
+CANDIDATE_MEMORY = 3
+"""`Candidates`: steps a candidate is approached after it was last reported: the verifier's score of a small target
+flickers around the candidate bar from frame to frame."""
+CANDIDATE_BUDGET = 10
+"""... and steps of approach per episode at most: a look-alike is approached at most this long (docs/control.md §34)."""
+
+
+class Candidates:
+    """Where the env reports candidates (`info["candidate_box"]`: regions the FCN's verifier turned away, but not by
+    much; `EnvConfig.fcn_candidate_threshold`), the box to approach in each env: the latest candidate, for
+    `CANDIDATE_MEMORY` steps after it was last reported, at most `CANDIDATE_BUDGET` steps per episode. Approached,
+    a target seen too small to tell grows until the verifier accepts it; a look-alike is dropped once the verifier's
+    score falls (docs/control.md §34)."""
+
+    def __init__(self, num_envs: int):
+        self.box = np.zeros((num_envs, 4), dtype=np.float32)
+        self.left = np.zeros(num_envs, dtype=np.int64)  # steps of approach left since the last report
+        self.spent = np.zeros(num_envs, dtype=np.int64)  # steps of approach taken this episode
+
+    def reset(self):
+        self.box[:] = 0
+        self.left[:] = 0
+        self.spent[:] = 0
+
+    def update(self, info, free: np.ndarray) -> np.ndarray:
+        """(N,) bool: the envs that approach their candidate (`box`) this step, of those `free` to (e.g. nothing
+        seen); all False where the env reports no candidates."""
+        if "candidate_box" not in info:
+            return np.zeros(len(self.box), dtype=bool)
+        reported = box_array(info["candidate_box"])
+        new = (reported[:, 2] > 0) & free
+        self.box[new] = reported[new]
+        self.left = np.where(new, CANDIDATE_MEMORY, np.maximum(self.left - 1, 0))
+        approach = free & (self.left > 0) & (self.spent < CANDIDATE_BUDGET)
+        self.spent += approach
+        return approach
+
+
 class ServoPolicy:
     """Scripted servo on the box: sweep until seen, centre the box (orbit for x, up/down for y) within
     `center_tol`, then step forward (zoom in). The sweep reverses on a refused step.
@@ -343,7 +390,10 @@ class ServoPolicy:
     leaves the lead-in out, for a servo that takes over after an exploration that has looked over already.
 
     With `fine` it serves with the fine moves where the env has them (env.fine_step_size) while the box is near
-    success (`near_target`); its sweep keeps the full step (docs/control.md §11)."""
+    success (`near_target`); its sweep keeps the full step (docs/control.md §11).
+
+    Where the env reports candidates (`Candidates`), it serves a candidate as it would the box while the box is
+    empty."""
 
     def __init__(
         self,
@@ -369,13 +419,19 @@ class ServoPolicy:
         self.hold, self.hold_limits = hold, hold_limits
         self.look_over = look_over
         self.last_action = np.full(self.num_envs, -1)
+        self.candidates = Candidates(self.num_envs)
 
     def reset(self, obs, info):
         self.sweep.reset()
         self.last_action[:] = -1
+        self.candidates.reset()
 
     def act(self, obs, info) -> np.ndarray:
         box = box_array(obs)
+        approach = self.candidates.update(info, box[:, 2] == 0)
+        if approach.any():
+            box = box.copy()
+            box[approach, :4] = self.candidates.box[approach]
         x, y, w, h = box[:, :4].T
         leading = self.sweep.leading()
         sweep = self.sweep.act(info)  # called every step so that refusals while sweeping turn it
@@ -417,7 +473,8 @@ class ExplorePolicy:
     `first_turn` (e.g. SWEEP_TURN) the orbit first turns back after that many steps, not at joint 1's limit.
     Where the env says so (`EnvConfig.explore_resumes_after`), an env whose box state has been empty (nothing seen,
     nothing held) for that many steps after the hand-over is handed back to the orbit until the next sighting: a
-    hand-over on a look-alike then costs a detour, not the episode (docs/control.md §31).
+    hand-over on a look-alike then costs a detour, not the episode (docs/control.md §31). Where the env reports
+    candidates (`Candidates`), the orbit stops to approach one, as the servo would, until it is seen or dropped.
     """
 
     def __init__(
@@ -435,9 +492,12 @@ class ExplorePolicy:
         self.handed_over = np.zeros(self.num_envs, dtype=bool)
         self.resumes_after = explore_resumes_after(env)
         self.unseen_for = np.zeros(self.num_envs, dtype=np.int64)  # steps in a row with an empty box
+        self.candidates = Candidates(self.num_envs)
+        self.approach = ServoPolicy(env) if candidate_threshold(env) else None  # acts on a candidate's box only
 
     def reset(self, obs, info):
         self.sweep.reset()
+        self.candidates.reset()
         self.handed_over[:] = False
         self.unseen_for[:] = 0
         if self.then is not None:
@@ -456,7 +516,12 @@ class ExplorePolicy:
 
     def act(self, obs, info) -> np.ndarray:
         handed_over = self.update(obs)  # before the sweep counts this step
+        approach = self.candidates.update(info, ~handed_over & ~self.sweep.leading())
         action = self.sweep.act(info)
+        if self.approach is not None and approach.any():
+            box = box_array(obs).copy()
+            box[:, :4] = self.candidates.box
+            action = np.where(approach, self.approach.act(box, {}), action)
         if handed_over.any():
             action = np.where(handed_over, self.then.act(obs, info), action)
         return action.astype(np.int64)

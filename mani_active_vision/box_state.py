@@ -20,6 +20,15 @@ import torch
 from mani_active_vision.boxes import mask_stats, mask_to_box
 
 BOX_SOURCES = ("ground_truth", "fcn", "projection")
+CANDIDATE_ACQUIRE = 0.99
+"""`BoxState(candidate_threshold=)`: the verifier probability a new region needs the step after a candidate. A
+look-alike approached as a candidate scores higher as it grows; at the usual acquire bar (0.97) it became the box
+in more of the approaches (docs/control.md §34)."""
+CANDIDATE_EDGE = 0.05
+"""... a candidate is reported only where its box lies this far (a share of the side) inside the image's border:
+one- or two-pixel regions at the border come and go as the camera moves."""
+CANDIDATE_MIN_PIXELS = 6
+"""... and covers at least this many pixels."""
 
 
 class BoxState(gym.ObservationWrapper):
@@ -54,6 +63,12 @@ class BoxState(gym.ObservationWrapper):
     and a region cut by the image's border gets the verifier's low bar only near it
     (`OneShotFCN.predict_with_presence(border_bar_near_previous=True)`): after the target has left by one border, a
     look-alike entering by another needs the acquire bar (docs/control.md §30).
+    `candidate_threshold`: for `source="fcn"` with a verifier, where the box is empty (nothing kept, nothing held or
+    not), the most probable region the verifier turned away is a candidate if its probability is at least this; its
+    box is `info["candidate_box"]` ((N, 4) tensor, or (4,) for a numpy env; zeros where there is none or where it
+    lies within `CANDIDATE_EDGE` of the border or covers under `CANDIDATE_MIN_PIXELS`), for the policies to approach
+    (`agents.policies.Candidates`), and at the next step a new region needs `CANDIDATE_ACQUIRE` (0: off;
+    docs/control.md §34).
     """
 
     def __init__(
@@ -69,6 +84,7 @@ class BoxState(gym.ObservationWrapper):
         hold_follows_camera: bool = False,
         hold_drop_centred: int = 0,
         border_bar_near_box: bool = False,
+        candidate_threshold: float = 0.0,
     ):
         super().__init__(env)
         check_thresholds(thresholds)
@@ -98,6 +114,11 @@ class BoxState(gym.ObservationWrapper):
                 "border_bar_near_box restricts the verifier's low bar to the tracked box: it needs source 'fcn' (got "
                 f"{source!r}) and thresholds (acquire, track) other than (0, 0), which track it (got {thresholds})"
             )
+        if not 0 <= candidate_threshold < 1 or (candidate_threshold and source != "fcn"):
+            raise ValueError(
+                f"candidate_threshold={candidate_threshold!r} must be in [0, 1) (0: off), and needs source 'fcn' (got "
+                f"{source!r}): candidates are regions the FCN's verifier turned away"
+            )
         if source == "fcn" and segmenter is None:
             raise ValueError(
                 "BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())"
@@ -115,6 +136,9 @@ class BoxState(gym.ObservationWrapper):
         self.hold_follows_camera = hold_follows_camera
         self.hold_drop_centred = hold_drop_centred
         self.border_bar_near_box = border_bar_near_box
+        self.candidate_threshold = candidate_threshold
+        self.last_candidate_box: torch.Tensor | None = None  # (N, 4): this step's candidates as reported (or zeros)
+        self._after_candidate: torch.Tensor | None = None  # (N,) bool: the previous step had a candidate
         self._camera: tuple | None = None  # this step's camera: extrinsic, intrinsic (OpenCV axes), image width
         self._seen_camera: tuple | None = None  # the camera where each held box was seen (extrinsic, intrinsic)
         self._held: torch.Tensor | None = None  # (N, 4 or 7): the last box (and mask stats) seen in each episode
@@ -145,6 +169,12 @@ class BoxState(gym.ObservationWrapper):
                 self._centred_for[torch.as_tensor(env_idx, device=self._held.device)] = 0
                 self._held_now = self._held_now.clone()
                 self._held_now[torch.as_tensor(env_idx, device=self._held.device)] = False
+        if self._after_candidate is not None:
+            if env_idx is None:
+                self._after_candidate = None
+            else:
+                self._after_candidate = self._after_candidate.clone()
+                self._after_candidate[torch.as_tensor(env_idx, device=self._after_candidate.device)] = False
         obs, info = super().reset(seed=seed, options=options)
         return obs, self._with_held(info)
 
@@ -156,6 +186,8 @@ class BoxState(gym.ObservationWrapper):
         """`info` with "box_held" where boxes are held (a bool, or (N,) for batched envs)."""
         if self.hold_steps:
             info["box_held"] = bool(self._held_now[0]) if self._numpy else self._held_now
+        if self.candidate_threshold:
+            info["candidate_box"] = self.last_candidate_box[0].numpy() if self._numpy else self.last_candidate_box
         return info
 
     def observation(self, obs):
@@ -171,18 +203,18 @@ class BoxState(gym.ObservationWrapper):
             mask = base.projected_target_mask()  # the same mask the task's info came from this step
             presence = mask.flatten(1).any(1).float()
         elif self.source == "fcn":
+            rgb, target = batch(obs["sensor_data"]["hand_camera"]["rgb"]), batch(obs["extra"]["target_image"])
             tracking = {}
             if any(self.thresholds):
                 previous = self._tracked_mask() if self.border_bar_near_box else self.last_mask
                 tracking = dict(
                     previous=previous, thresholds=self.thresholds, border_bar_near_previous=self.border_bar_near_box
                 )
-            mask, presence = self.segmenter.predict_with_presence(
-                batch(obs["sensor_data"]["hand_camera"]["rgb"]),
-                batch(obs["extra"]["target_image"]),
-                largest_component=True,
-                **tracking,
-            )
+            if self.candidate_threshold:
+                mask, presence = self._segment_after_candidates(rgb, target, tracking)
+                self.last_candidate_box = self._candidates(rgb, target, mask, presence)
+            else:
+                mask, presence = self.segmenter.predict_with_presence(rgb, target, largest_component=True, **tracking)
         else:
             seg = batch(obs["sensor_data"]["hand_camera"]["segmentation"])
             mask = seg[..., 0] == base.target_seg_id.to(seg.device)[:, None, None]
@@ -200,6 +232,48 @@ class BoxState(gym.ObservationWrapper):
         if self._numpy:
             return state[0].cpu().numpy()
         return state
+
+    def _segment_after_candidates(self, rgb, target, tracking: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """`predict_with_presence` as without candidates, but with the acquire bar `CANDIDATE_ACQUIRE` in the envs
+        whose previous step had a candidate."""
+        raised = self._after_candidate
+        if raised is None or not raised.any():
+            return self.segmenter.predict_with_presence(rgb, target, largest_component=True, **tracking)
+        bars = (CANDIDATE_ACQUIRE, self.thresholds[1])
+        if raised.all():
+            return self.segmenter.predict_with_presence(
+                rgb, target, largest_component=True, **dict(tracking, thresholds=bars)
+            )
+        mask, presence = self.segmenter.predict_with_presence(rgb, target, largest_component=True, **tracking)
+        rows = raised.to(mask.device)
+        previous = tracking.get("previous")
+        extra = dict(tracking, thresholds=bars, previous=None if previous is None else previous[rows])
+        mask[rows], presence[rows] = self.segmenter.predict_with_presence(
+            rgb[rows], target[rows], largest_component=True, **extra
+        )
+        return mask, presence
+
+    def _candidates(self, rgb, target, mask: torch.Tensor, presence: torch.Tensor) -> torch.Tensor:
+        """(N, 4) boxes of this step's candidates (`candidate_threshold`), zeros where there is none or where it lies
+        near the border or is too small; remembers where there was one, for the next step's acquire bar."""
+        empty = ~mask.flatten(1).any(1).cpu()
+        wanted = empty & (presence.cpu() >= self.candidate_threshold)
+        boxes = torch.zeros(len(mask), 4)
+        if wanted.any():
+            bars = (self.candidate_threshold, self.candidate_threshold)
+            rows = wanted.to(mask.device)
+            candidate, _ = self.segmenter.predict_with_presence(
+                rgb[rows], target[rows], largest_component=True, thresholds=bars
+            )
+            boxes[wanted] = mask_to_box(candidate.cpu()).float()
+        self._after_candidate = boxes[:, 2] > 0
+        x, y, w, h = boxes.T
+        height, width = mask.shape[1:]
+        inside = (
+            (x > CANDIDATE_EDGE) & (y > CANDIDATE_EDGE) & (x + w < 1 - CANDIDATE_EDGE) & (y + h < 1 - CANDIDATE_EDGE)
+        )
+        large = w * h * width * height >= CANDIDATE_MIN_PIXELS
+        return torch.where((inside & large)[:, None], boxes, 0.0)
 
     def _hold(self, box: torch.Tensor) -> torch.Tensor:
         """`box` (with its mask stats), the last one seen in place of an empty one for up to `hold_steps` steps

@@ -9,9 +9,9 @@
 # EnvConfig.stay_needs_success; the held box moving with the camera,
 # EnvConfig.box_hold_follows_camera, and dropped once centred and unseen, envs.DQN_BOX_HOLD_DROP_CENTRED; the verifier's
 # low bar for regions cut by the border only near the tracked box, EnvConfig.fcn_border_bar_near_box; the exploration
-# resuming after an empty box, envs.DQN_EXPLORE_RESUMES_AFTER; and the FCN segmenting the camera's frame at its own
-# 128², envs.FCN_SEGMENT_SIZE), then evaluate it as deployed on 50 held-out episodes (docs/control.md §9, §11-§12,
-# §17-§21, §25, §27, §30-§32).
+# resuming after an empty box, envs.DQN_EXPLORE_RESUMES_AFTER; the verifier's near-misses approached,
+# envs.DQN_FCN_CANDIDATE_THRESHOLD; and the FCN segmenting the camera's frame at its own 128², envs.FCN_SEGMENT_SIZE),
+# then evaluate it as deployed on 50 held-out episodes (docs/control.md §9, §11-§12, §17-§21, §25, §27, §30-§32, §34).
 # The hold_stay_decay agent shipped before it (trained on the full step, the same fine moves when it acts; no longer
 # shipped) is remade by   PRESET=hold_stay_decay SEED=0 OUT=<a file> bash scripts/make_dqn.sh
 # The hold_stay agent shipped before it (the shipped memory agent's teacher; docs/search.md) is remade by

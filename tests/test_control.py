@@ -19,6 +19,8 @@ import mani_active_vision as mav
 from mani_active_vision.agents import dqn
 from mani_active_vision.agents.policies import (
     BACKWARD,
+    CANDIDATE_BUDGET,
+    CANDIDATE_MEMORY,
     DOWN,
     FORWARD,
     LEFT,
@@ -40,6 +42,7 @@ from mani_active_vision.envs import (
     DQN_BACK_WHEN_CLOSE,
     DQN_BOX_HOLD_DROP_CENTRED,
     DQN_EXPLORE_RESUMES_AFTER,
+    DQN_FCN_CANDIDATE_THRESHOLD,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_FROM_AREA,
     DQN_FINE_NEAR_CENTRE,
@@ -178,6 +181,46 @@ def test_the_exploration_resumes_after_an_empty_box_where_the_env_says_so():
     assert ExplorePolicy(mav.DiscreteDirections(cached_task(start_pose="search", obs_mode="rgb"))).resumes_after == 0
     with pytest.raises(ValueError, match="explore_resumes_after=-1 must be an integer of at least 0"):
         mav.EnvConfig(explore_resumes_after=-1)
+
+
+def test_the_servo_and_the_exploration_approach_a_candidate_for_a_few_steps_within_a_budget():
+    """Where the env reports a candidate (`info["candidate_box"]`, `EnvConfig.fcn_candidate_threshold`) and the box is
+    empty, the servo serves it as it would the box, for `CANDIDATE_MEMORY` steps after the last report and at most
+    `CANDIDATE_BUDGET` steps an episode; the exploration does so before its hand-over; without reports, nothing
+    changes."""
+    env = _box_env(start_pose="search")
+    unseen = torch.zeros(1, 4)
+    left_candidate = {"candidate_box": torch.tensor([[0.1, 0.45, 0.05, 0.05]])}
+    nothing = {"candidate_box": torch.zeros(1, 4)}
+    servo = make_policy("servo", env)
+    servo.reset(None, {})
+    acts = [int(servo.act(unseen, info)[0]) for info in [left_candidate] + [nothing] * (CANDIDATE_MEMORY + 1)]
+    assert acts == [LEFT] * CANDIDATE_MEMORY + [LEFT, LEFT]  # toward it (left), then the sweep (left here too)
+    servo.reset(None, {})
+    right = {"candidate_box": torch.tensor([[0.85, 0.45, 0.05, 0.05]])}
+    acts = [int(servo.act(unseen, right)[0]) for _ in range(CANDIDATE_BUDGET + 2)]
+    assert acts == [RIGHT] * CANDIDATE_BUDGET + [LEFT, LEFT]  # the budget spent: the sweep again
+    assert (
+        int(servo.act(torch.tensor([[0.1, 0.45, 0.2, 0.2]]), right)[0]) == LEFT
+    )  # a box seen: served, not the candidate
+    servo.reset(None, {})
+    assert int(servo.act(unseen, right)[0]) == RIGHT  # a new episode, a new budget
+    then = types.SimpleNamespace(act=lambda obs, info: np.array([DOWN]), reset=lambda obs, info: None)
+    assert ExplorePolicy(env, then=then).approach is None  # an env without candidates
+    reporting = BoxState(
+        mav.DiscreteDirections(cached_task(start_pose="search", obs_mode="rgb")),
+        source="fcn",
+        segmenter=object(),  # not called here: the policy is given the observations
+        candidate_threshold=0.9,
+    )
+    explore = ExplorePolicy(reporting, then=then)
+    explore.reset(unseen, {})
+    centred = {"candidate_box": torch.tensor([[0.47, 0.47, 0.05, 0.05]])}
+    acts = [int(explore.act(unseen, info)[0]) for info in (centred, nothing, nothing, nothing)]
+    assert acts == [FORWARD] * CANDIDATE_MEMORY + [LEFT]  # centred: straight at it, then the orbit again
+    assert int(explore.act(torch.tensor([[0.4, 0.4, 0.1, 0.1]]), centred)[0]) == DOWN  # seen: handed over
+    explore.reset(unseen, {})
+    assert int(explore.act(unseen, {})[0]) == LEFT  # no reports: the orbit
 
 
 def test_every_policy_acts_in_the_action_space(tmp_path):
@@ -523,6 +566,7 @@ def test_the_shipped_dqn_loads_and_acts_as_deployed():
         box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,  # and is dropped once centred, unseen (docs/control.md §27)
         fcn_border_bar_near_box=True,  # the border's low bar only near the tracked box (docs/control.md §30)
         explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,  # the orbit again after an empty box (docs/control.md §31)
+        fcn_candidate_threshold=DQN_FCN_CANDIDATE_THRESHOLD,  # near-misses approached (docs/control.md §34)
     )
     assert deployed == trained.as_dqn_deployed().replace(object_set="unseen")  # ship_dqn.py --as-dqn
     # the hold_stay_fine preset: it stays well inside success, sees the mask stats, does not repeat a refused

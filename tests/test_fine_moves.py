@@ -31,6 +31,7 @@ from mani_active_vision.envs import (
     DQN_BACK_WHEN_CLOSE,
     DQN_BOX_HOLD_DROP_CENTRED,
     DQN_EXPLORE_RESUMES_AFTER,
+    DQN_FCN_CANDIDATE_THRESHOLD,
     DQN_FCN_THRESHOLDS,
     DQN_FINE_FROM_AREA,
     DQN_FINE_NEAR_CENTRE,
@@ -113,6 +114,7 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
             box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
             fcn_border_bar_near_box=True,
             explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,
+            fcn_candidate_threshold=DQN_FCN_CANDIDATE_THRESHOLD,
         )
     )
     no_hold = ship_dqn.ship(

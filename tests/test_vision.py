@@ -26,7 +26,7 @@ from mani_active_vision.agents.fcn import (
     summarize_counts,
 )
 from mani_active_vision.agents.verifier import regions
-from mani_active_vision.box_state import BoxState, floor_anchor, moved_box
+from mani_active_vision.box_state import CANDIDATE_ACQUIRE, BoxState, floor_anchor, moved_box
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.segmentation_data import (
     SegmentationDataConfig,
@@ -632,6 +632,58 @@ def test_the_held_box_is_tracked_where_the_border_bar_is_kept_near_it():
     with pytest.raises(ValueError, match="fcn_border_bar_near_box restricts the verifier's low bar"):
         mav.EnvConfig(box_source="fcn", fcn_border_bar_near_box=True)
     assert mav.EnvConfig(fcn_border_bar_near_box=True).box_source == "ground_truth"  # the FCN's field, ignored there
+
+
+def test_a_region_the_verifier_turned_away_by_little_is_a_candidate_and_raises_the_next_acquire_bar():
+    class Verifier:  # one scripted region per frame with its probability, accepted at the acquire bar given
+        def __init__(self):
+            self.region, self.probability, self.bars = None, 0.0, []
+
+        def predict_with_presence(self, scene, target, largest_component, thresholds=(0.0, 0.0), **tracking):
+            self.bars.append(thresholds)
+            mask = torch.zeros(1, *scene.shape[1:3], dtype=torch.bool)
+            if self.region is not None and self.probability >= thresholds[0]:
+                mask[0][self.region] = True
+            return mask, torch.tensor([self.probability if self.region is not None else 0.0])
+
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    verifier = Verifier()
+    env = BoxState(task, source="fcn", segmenter=verifier, thresholds=(0.97, 0.9), candidate_threshold=0.9)
+    inside, border, tiny = (slice(24, 32), slice(24, 40)), (slice(24, 32), slice(0, 8)), (slice(30, 32), slice(30, 32))
+
+    def step(region, probability):
+        verifier.region, verifier.probability = region, probability
+        verifier.bars.clear()
+        obs, _, _, _, info = env.step(0)
+        return obs.reshape(-1)[:4], info["candidate_box"].reshape(-1), verifier.bars
+
+    obs, info = env.reset(seed=0)
+    assert not info["candidate_box"].any() and not obs.any()
+    box, candidate, bars = step(inside, 0.95)  # turned away at 0.97, over 0.9: a candidate, its box reported
+    assert not box.any() and torch.allclose(candidate, torch.tensor([24 / 64, 24 / 64, 16 / 64, 8 / 64]))
+    assert bars == [(0.97, 0.9), (0.9, 0.9)]
+    box, candidate, bars = step(inside, 0.98)  # after a candidate a new region needs CANDIDATE_ACQUIRE (0.99)
+    assert bars[0] == (CANDIDATE_ACQUIRE, 0.9) and not box.any() and candidate.any()
+    box, candidate, bars = step(border, 0.95)  # at the border: not reported, but the bar stays raised
+    assert not candidate.any()
+    box, candidate, bars = step(tiny, 0.95)  # 4 pixels: not reported
+    assert bars[0] == (CANDIDATE_ACQUIRE, 0.9) and not candidate.any()
+    box, candidate, bars = step(None, 0.0)  # nothing: no candidate
+    assert not candidate.any() and len(bars) == 1
+    box, candidate, bars = step(inside, 0.98)  # the usual bar again: the region becomes the box
+    assert bars == [(0.97, 0.9)] and box.any() and not candidate.any()
+    verifier.region, verifier.probability = inside, 0.95
+    env.step(0)
+    verifier.bars.clear()
+    env.reset(seed=0)
+    assert verifier.bars[0] == (0.97, 0.9)  # a new episode keeps nothing of the last one's candidates
+    assert "candidate_box" not in BoxState(task, source="fcn", segmenter=verifier).reset(seed=0)[1]
+    with pytest.raises(
+        ValueError, match="candidate_threshold=0.9 must be in \\[0, 1\\) \\(0: off\\), and needs source 'fcn'"
+    ):
+        BoxState(cached_task(), source="ground_truth", candidate_threshold=0.9)
+    with pytest.raises(ValueError, match="fcn_candidate_threshold=1.0 must be in"):
+        mav.EnvConfig(fcn_candidate_threshold=1.0)
 
 
 def test_a_held_box_centred_in_the_view_is_dropped_after_its_steps_until_a_box_is_seen_again():
