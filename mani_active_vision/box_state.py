@@ -155,12 +155,8 @@ class BoxState(gym.ObservationWrapper):
     def reset(self, *, seed=None, options=None):
         """The next observation tracks nothing from the episodes being reset (all, or `options["env_idx"]`)."""
         env_idx = (options or {}).get("env_idx")
-        if self.last_mask is not None:
-            if env_idx is None:
-                self.last_mask = None
-            else:
-                self.last_mask = self.last_mask.clone()
-                self.last_mask[torch.as_tensor(env_idx, device=self.last_mask.device)] = False
+        self.last_mask = _cleared(self.last_mask, env_idx)
+        self._after_candidate = _cleared(self._after_candidate, env_idx)
         if self._held is not None:
             if env_idx is None:
                 self._held = self._unseen_for = self._seen_camera = self._centred_for = self._held_now = None
@@ -169,12 +165,6 @@ class BoxState(gym.ObservationWrapper):
                 self._centred_for[torch.as_tensor(env_idx, device=self._held.device)] = 0
                 self._held_now = self._held_now.clone()
                 self._held_now[torch.as_tensor(env_idx, device=self._held.device)] = False
-        if self._after_candidate is not None:
-            if env_idx is None:
-                self._after_candidate = None
-            else:
-                self._after_candidate = self._after_candidate.clone()
-                self._after_candidate[torch.as_tensor(env_idx, device=self._after_candidate.device)] = False
         obs, info = super().reset(seed=seed, options=options)
         return obs, self._with_held(info)
 
@@ -331,6 +321,16 @@ FLOOR_HEIGHT = 0.0
 CENTRED = 0.25
 """`BoxState(hold_drop_centred=)`: how far from the image centre (a fraction of its side, on both axes) a held box's
 centre counts as centred: the middle half of the image"""
+
+
+def _cleared(flags: torch.Tensor | None, env_idx) -> torch.Tensor | None:
+    """Per-env bool state (N, ...) with the episodes being reset cleared: None when all are (`env_idx` None), else a
+    copy with their rows False."""
+    if flags is None or env_idx is None:
+        return None
+    flags = flags.clone()
+    flags[torch.as_tensor(env_idx, device=flags.device)] = False
+    return flags
 
 
 def floor_anchor(box: np.ndarray, extrinsic: np.ndarray, intrinsic: np.ndarray, size: int) -> np.ndarray:

@@ -26,7 +26,7 @@ from mani_active_vision.agents.fcn import (
     summarize_counts,
 )
 from mani_active_vision.agents.verifier import regions
-from mani_active_vision.box_state import CANDIDATE_ACQUIRE, BoxState, floor_anchor, moved_box
+from mani_active_vision.box_state import CANDIDATE_ACQUIRE, BoxState, _cleared, floor_anchor, moved_box
 from mani_active_vision.envs import EnvConfig
 from mani_active_vision.segmentation_data import (
     SegmentationDataConfig,
@@ -684,6 +684,10 @@ def test_a_region_the_verifier_turned_away_by_little_is_a_candidate_and_raises_t
         BoxState(cached_task(), source="ground_truth", candidate_threshold=0.9)
     with pytest.raises(ValueError, match="fcn_candidate_threshold=1.0 must be in"):
         mav.EnvConfig(fcn_candidate_threshold=1.0)
+    flags = torch.tensor([True, True, False])  # a batched env's state, some of its episodes reset
+    cleared = _cleared(flags, [1])
+    assert cleared.tolist() == [True, False, False] and flags.tolist() == [True, True, False]  # a copy
+    assert _cleared(flags, None) is None and _cleared(None, [0]) is None
 
 
 def test_a_held_box_centred_in_the_view_is_dropped_after_its_steps_until_a_box_is_seen_again():
