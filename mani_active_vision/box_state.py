@@ -173,7 +173,8 @@ class BoxState(gym.ObservationWrapper):
         return obs, reward, terminated, truncated, self._with_held(info)
 
     def _with_held(self, info: dict) -> dict:
-        """`info` with "box_held" where boxes are held (a bool, or (N,) for batched envs)."""
+        """`info` with "box_held" where boxes are held (a bool, or (N,) for batched envs) and "candidate_box" where
+        candidates are reported."""
         if self.hold_steps:
             info["box_held"] = bool(self._held_now[0]) if self._numpy else self._held_now
         if self.candidate_threshold:
