@@ -250,13 +250,15 @@ class BoxState(gym.ObservationWrapper):
         empty = ~mask.flatten(1).any(1).cpu()
         wanted = empty & (presence.cpu() >= self.candidate_threshold)
         boxes = torch.zeros(len(mask), 4)
-        if wanted.any():
-            bars = (self.candidate_threshold, self.candidate_threshold)
-            rows = wanted.to(mask.device)
-            candidate, _ = self.segmenter.predict_with_presence(
-                rgb[rows], target[rows], largest_component=True, thresholds=bars
-            )
-            boxes[wanted] = mask_to_box(candidate.cpu()).float()
+        if not wanted.any():  # most frames: nothing to locate or filter
+            self._after_candidate = wanted
+            return boxes
+        bars = (self.candidate_threshold, self.candidate_threshold)
+        rows = wanted.to(mask.device)
+        candidate, _ = self.segmenter.predict_with_presence(
+            rgb[rows], target[rows], largest_component=True, thresholds=bars
+        )
+        boxes[wanted] = mask_to_box(candidate.cpu()).float()
         self._after_candidate = boxes[:, 2] > 0
         x, y, w, h = boxes.T
         height, width = mask.shape[1:]
