@@ -600,6 +600,45 @@ def test_box_hold_keeps_the_last_box_seen_for_its_steps_and_forgets_it_at_reset(
         mav.EnvConfig(box_hold_steps=-1)
 
 
+def test_candidates_in_a_batch_raise_the_bar_only_in_their_own_episodes():
+    class Verifier:  # per episode (its index in the scene's first pixel) one region and its probability
+        def __init__(self, regions):
+            self.regions, self.calls = regions, []
+
+        def predict_with_presence(self, scene, target, largest_component, thresholds=(0.0, 0.0), previous=None, **_):
+            rows = scene[:, 0, 0, 0].tolist()
+            self.calls.append((rows, thresholds, None if previous is None else len(previous)))
+            mask = torch.zeros(len(scene), *scene.shape[1:3], dtype=torch.bool)
+            presence = torch.zeros(len(scene))
+            for i, row in enumerate(rows):
+                if self.regions[row] is not None:
+                    region, presence[i] = self.regions[row]
+                    mask[i][region] = presence[i] >= thresholds[0]
+            return mask, presence
+
+    inside = (slice(24, 32), slice(24, 40))
+    verifier = Verifier([(inside, 0.95), (inside, 0.98), None])  # a candidate, a sighting, nothing
+    task = mav.DiscreteDirections(cached_task(start_pose="search", placement="fixed", obs_mode="rgb"))
+    env = BoxState(task, source="fcn", segmenter=verifier, thresholds=(0.97, 0.9), candidate_threshold=0.9)
+    rgb = torch.zeros(3, 64, 64, 3, dtype=torch.uint8)
+    rgb[:, 0, 0, 0] = torch.arange(3)
+    target = torch.zeros(3, 32, 32, 3, dtype=torch.uint8)
+    tracking = dict(previous=torch.zeros(3, 64, 64, dtype=torch.bool), thresholds=(0.97, 0.9))
+
+    mask, presence = env._segment_after_candidates(rgb, target, tracking)
+    boxes = env._candidates(rgb, target, mask, presence)
+    assert mask.flatten(1).any(1).tolist() == [False, True, False]
+    assert boxes[0].tolist() == [24 / 64, 24 / 64, 16 / 64, 8 / 64] and not boxes[1:].any()
+    assert verifier.calls[-1] == ([0], (0.9, 0.9), None)  # the candidate located in its own episode only
+    assert env._after_candidate.tolist() == [True, False, False]
+
+    verifier.calls.clear()
+    verifier.regions = [(inside, 0.98)] * 3  # the same score everywhere: only episode 0's bar is raised
+    mask, _ = env._segment_after_candidates(rgb, target, tracking)
+    assert verifier.calls == [([0, 1, 2], (0.97, 0.9), 3), ([0], (CANDIDATE_ACQUIRE, 0.9), 1)]
+    assert mask.flatten(1).any(1).tolist() == [False, True, True]
+
+
 def test_the_held_box_is_tracked_where_the_border_bar_is_kept_near_it():
     class Scripted:  # a segmenter that sees a box, then nothing, noting what it is asked to track
         def __init__(self):
