@@ -202,6 +202,12 @@ class Args:
     """n-step returns: bootstrap after n of the learner's steps (not in the paper)"""
     updates_per_step: int = 1
     """gradient updates per env step (not in the paper)"""
+    priority_exponent: float = 0.0
+    """prioritised replay (Schaul et al. 2016, proportional): a transition is sampled with probability ∝ (|its last TD
+    error| + PRIORITY_FLOOR)^α, this α (a new one at the largest priority so far), and its loss weighted by
+    importance sampling, (N P)^-β scaled to at most 1; 0: uniform sampling (not in the paper; one network only)"""
+    priority_correction: float = 0.4
+    """the importance-sampling exponent β at the first episode, linear to 1 at the last (with priority_exponent)"""
     box_dropout: float = 0.0
     """in training, each step's box is replaced by "not seen" (zeros) with this probability, for the actor and
     the learner alike: the FCN's box misses about a third of the target's views (docs/vision.md), which a
@@ -251,10 +257,15 @@ def linear_schedule(start: float, end: float, duration: int, t: int) -> float:
     return start + (end - start) * min(t, duration) / duration
 
 
+PRIORITY_FLOOR = 0.01
+"""Added to a transition's |TD error| for its priority (`Args.priority_exponent`): none falls out of sampling."""
+
+
 class ReplayBuffer:
     """A ring buffer of (state, action, reward, next_state, terminated, steps, demo) transitions; `steps` is
     how many env steps the reward sums (1, or up to n for n-step returns), `demo` marks the servo's that DQfD's
-    margin applies to (`margin_applies`)."""
+    margin applies to (`margin_applies`). Each also has a priority for prioritised sampling (`sample`'s
+    `exponent`; `set_priorities`)."""
 
     def __init__(self, capacity: int, state_dim: int):
         self.states = np.zeros((capacity, state_dim), np.float32)
@@ -264,20 +275,42 @@ class ReplayBuffer:
         self.terminated = np.zeros(capacity, np.float32)
         self.steps = np.ones(capacity, np.float32)
         self.demo = np.zeros(capacity, bool)
+        self.priorities = np.zeros(capacity)
+        self.max_priority = 1.0  # a new transition's: it is sampled soon, then gets its own
         self.capacity, self.size, self._next = capacity, 0, 0
 
     def add(self, state, action, reward, next_state, terminated, steps=1, demo=False):
         i = self._next
         self.states[i], self.actions[i], self.rewards[i] = state, action, reward
         self.next_states[i], self.terminated[i], self.steps[i] = next_state, terminated, steps
-        self.demo[i] = demo
+        self.demo[i], self.priorities[i] = demo, self.max_priority
         self._next = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
-    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-        idx = rng.integers(0, self.size, size=batch_size)
+    def sample(
+        self, batch_size: int, rng: np.random.Generator, exponent: float = 0.0, correction: float = 1.0
+    ) -> dict[str, torch.Tensor]:
+        """A batch drawn uniformly; with `exponent` α > 0 in proportion to priority^α, with the transitions'
+        "indices" and importance-sampling "weights" (N P)^-β (β = `correction`), divided by the largest any
+        transition in the buffer could get."""
+        if not exponent:
+            idx = rng.integers(0, self.size, size=batch_size)
+        else:
+            probability = self.priorities[: self.size] ** exponent
+            probability /= probability.sum()
+            idx = rng.choice(self.size, size=batch_size, p=probability)
+            weights = (self.size * probability[idx]) ** -correction / (self.size * probability.min()) ** -correction
         keys = ("states", "actions", "rewards", "next_states", "terminated", "steps", "demo")
-        return {k: torch.as_tensor(getattr(self, k)[idx]) for k in keys}
+        batch = {k: torch.as_tensor(getattr(self, k)[idx]) for k in keys}
+        if exponent:
+            batch.update(indices=torch.as_tensor(idx), weights=torch.as_tensor(weights, dtype=torch.float32))
+        return batch
+
+    def set_priorities(self, indices: torch.Tensor, errors: torch.Tensor) -> None:
+        """The sampled transitions' new priorities: their |TD errors| + PRIORITY_FLOOR."""
+        priorities = errors.abs().double().numpy() + PRIORITY_FLOOR
+        self.priorities[indices.numpy()] = priorities
+        self.max_priority = max(self.max_priority, float(priorities.max()))
 
 
 class NStepWindow:
@@ -304,17 +337,20 @@ def td_loss(
     gamma: float,
     double_dqn: bool = False,
     huber: bool = False,
-) -> torch.Tensor:
+    with_errors: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """The TD loss of a batch: Q(s, a) against r + γ^steps (1 - terminated) max_a' Q_target(s', a')
-    (`steps` = 1 where the batch does not say). An ensemble's members each learn against their own target
-    member (and, with double DQN, their own argmax), on the one batch or on a list of one batch per member; the
-    loss is the mean over members."""
+    (`steps` = 1 where the batch does not say), each transition's term weighted where the batch has "weights"
+    (prioritised replay). An ensemble's members each learn against their own target member (and, with double
+    DQN, their own argmax), on the one batch or on a list of one batch per member; the loss is the mean over
+    members. `with_errors`: (loss, the first member's TD errors Q(s, a) - target, detached)."""
     batches = batch if isinstance(batch, list) else [batch] * q_network.ensemble
-    losses = [
+    results = [
         _member_td_loss(q_network.member(k), target_network.member(k), b, gamma, double_dqn, huber)
         for k, b in enumerate(batches)
     ]
-    return torch.stack(losses).mean()
+    loss = torch.stack([loss for loss, _ in results]).mean()
+    return (loss, results[0][1]) if with_errors else loss
 
 
 def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double_dqn: bool, huber: bool):
@@ -328,7 +364,11 @@ def _member_td_loss(q_network, target_network, batch: dict, gamma: float, double
         discount = gamma ** batch["steps"] if "steps" in batch else gamma
         td_target = batch["rewards"] + discount * (1.0 - batch["terminated"]) * next_value
     q = q_network(batch["states"]).gather(1, batch["actions"][:, None]).squeeze(1)
-    return F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)
+    errors = (q - td_target).detach()
+    if "weights" in batch:
+        terms = F.smooth_l1_loss(q, td_target, reduction="none") if huber else (q - td_target) ** 2
+        return (batch["weights"] * terms).mean(), errors
+    return (F.smooth_l1_loss(q, td_target) if huber else F.mse_loss(q, td_target)), errors
 
 
 def margin_loss(q_network: QNetwork, batch: dict, margin: float) -> torch.Tensor:
@@ -523,12 +563,20 @@ class Selector:
 
 
 def update(
-    q_network: QNetwork, target_network: QNetwork, optimizer, batch: dict | list[dict], args: Args
+    q_network: QNetwork,
+    target_network: QNetwork,
+    optimizer,
+    batch: dict | list[dict],
+    args: Args,
+    buffer: ReplayBuffer | None = None,
 ) -> tuple[float, float]:
     """One gradient step on a batch (or one per ensemble member): the TD loss, plus DQfD's margin loss with
-    `demo_margin` (on the ensemble's mean, the first batch); returns both."""
-    loss = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber)
+    `demo_margin` (on the ensemble's mean, the first batch); returns both. A prioritised batch's TD errors become
+    its transitions' priorities in `buffer`."""
+    loss, errors = td_loss(q_network, target_network, batch, args.gamma, args.double_dqn, args.huber, True)
     first = batch[0] if isinstance(batch, list) else batch
+    if "indices" in first:
+        buffer.set_priorities(first["indices"], errors)
     margin = margin_loss(q_network, first, args.demo_margin) if args.demo_margin else torch.zeros(())
     optimizer.zero_grad()
     (loss + margin).backward()
@@ -536,11 +584,12 @@ def update(
     return loss.item(), margin.item()
 
 
-def sample(buffer: ReplayBuffer, args: Args, rng) -> dict | list[dict]:
-    """A batch, or with `ensemble_batches` one per ensemble member."""
+def sample(buffer: ReplayBuffer, args: Args, rng, correction: float = 1.0) -> dict | list[dict]:
+    """A batch (prioritised with `priority_exponent`, β = `correction`), or with `ensemble_batches` one per
+    ensemble member."""
     if args.ensemble_batches:
         return [buffer.sample(args.batch_size, rng) for _ in range(args.ensemble)]
-    return buffer.sample(args.batch_size, rng)
+    return buffer.sample(args.batch_size, rng, args.priority_exponent, correction)
 
 
 def tensorboard_writer(run_dir: str):
@@ -608,6 +657,15 @@ def train(args: Args, progress: bool = True) -> dict:
     if args.episodes % args.num_envs:
         raise ValueError(
             f"episodes={args.episodes} must be a multiple of num_envs={args.num_envs} (rounds of one each)"
+        )
+    if (
+        args.priority_exponent < 0
+        or not 0 <= args.priority_correction <= 1
+        or (args.priority_exponent and args.ensemble > 1)
+    ):
+        raise ValueError(
+            f"priority_exponent={args.priority_exponent} must be ≥ 0 (0: uniform replay), priority_correction="
+            f"{args.priority_correction} in [0, 1], and prioritised replay is for one network (ensemble={args.ensemble})"
         )
     if args.select_every < 0 or (args.select_every and args.select_episodes < 1):
         raise ValueError(
@@ -687,6 +745,7 @@ def train(args: Args, progress: bool = True) -> dict:
             if args.end_learning_rate:
                 lr = linear_schedule(args.learning_rate, args.end_learning_rate, args.episodes - 1, first)
                 optimizer.param_groups[0]["lr"] = lr
+            correction = linear_schedule(args.priority_correction, 1.0, args.episodes - 1, first)
             seeds = [args.seed * TRAIN_SEED_STRIDE + int(e) for e in episodes]
             obs, info = env.reset(seed=seeds[0] if n == 1 else seeds)
             if args.box_dropout:
@@ -745,7 +804,8 @@ def train(args: Args, progress: bool = True) -> dict:
                     global_step += 1  # the updates follow the env steps of the episodes, whatever the env count
                     if buffer.size >= args.learning_starts and global_step % args.train_frequency == 0:
                         for _ in range(args.updates_per_step):
-                            losses_now = update(q_network, target_network, optimizer, sample(buffer, args, rng), args)
+                            batch = sample(buffer, args, rng, correction)
+                            losses_now = update(q_network, target_network, optimizer, batch, args, buffer)
                             losses.append(losses_now[0])
                             if args.demo_margin:
                                 margins.append(losses_now[1])

@@ -106,6 +106,38 @@ def test_td_target_uses_reward_discount_and_termination():
     assert dqn.td_loss(q_network, target_network, batch, gamma=0.5).item() == pytest.approx(2.5)
 
 
+def test_prioritised_replay_samples_by_td_error_and_weights_the_loss_back():
+    buffer = dqn.ReplayBuffer(8, 4)
+    for i in range(4):
+        buffer.add(np.full(4, i), 0, 1.0, np.zeros(4), 0.0)
+    rng = np.random.default_rng(0)
+    assert "weights" not in buffer.sample(16, rng)  # α = 0: uniform, as without priorities
+    buffer.set_priorities(torch.tensor([0, 1, 2]), torch.tensor([0.0, -0.99, 0.0]))  # |error| + PRIORITY_FLOOR
+    assert buffer.priorities[:4].tolist() == pytest.approx([0.01, 1.0, 0.01, 1.0])  # 3 kept the first priority
+    batch = buffer.sample(2000, rng, exponent=1.0, correction=1.0)
+    share = np.bincount(batch["indices"].numpy(), minlength=4) / 2000
+    assert share == pytest.approx([0.01 / 2.02, 1 / 2.02, 0.01 / 2.02, 1 / 2.02], abs=0.02)
+    assert torch.equal(batch["states"][:, 0].long(), batch["indices"])  # each row is the transition it names
+    weights = batch["weights"][torch.argsort(batch["indices"])]
+    assert weights.max() <= 1 and weights.min() == pytest.approx(0.01)  # (N P)^-1, the rarest's at 1
+    buffer.add(np.zeros(4), 0, 1.0, np.zeros(4), 0.0)  # a new transition: the largest priority so far
+    assert buffer.priorities[4] == pytest.approx(1.0) and buffer.max_priority == pytest.approx(1.0)
+
+    torch.manual_seed(0)
+    q_network, target_network = dqn.QNetwork(4), dqn.QNetwork(4)
+    plain = _batch()
+    loss, errors = dqn.td_loss(q_network, target_network, plain, 0.9, with_errors=True)
+    assert torch.equal(loss, dqn.td_loss(q_network, target_network, plain, 0.9))
+    assert loss.item() == pytest.approx((errors**2).mean().item())
+    weighted = {**plain, "weights": torch.linspace(0, 1, 64)}
+    expected = (weighted["weights"] * errors**2).mean().item()
+    assert dqn.td_loss(q_network, target_network, weighted, 0.9).item() == pytest.approx(expected)
+    with pytest.raises(ValueError, match="prioritised replay is for one network"):
+        dqn.train(dqn.Args(priority_exponent=0.6, ensemble=2, episodes=1))
+    with pytest.raises(ValueError, match=r"priority_correction=1.5 in \[0, 1\]"):
+        dqn.train(dqn.Args(priority_exponent=0.6, priority_correction=1.5, episodes=1))
+
+
 @pytest.mark.parametrize("double_dqn", [False, True])
 def test_an_ensembles_members_each_learn_against_their_own_target_and_it_acts_on_their_mean(double_dqn, tmp_path):
     torch.manual_seed(0)
@@ -361,6 +393,23 @@ def test_select_every_keeps_the_validated_network_that_succeeds_most(tmp_path, m
     assert [c["episodes"] for c in history["selection"]] == [2, 4] and history["selection"][0]["kept"]
     with pytest.raises(ValueError, match="select_every=-1"):
         dqn.train(dqn.Args(**base, select_every=-1, run_dir=str(tmp_path)), progress=False)
+
+
+def test_prioritised_training_sets_priorities_from_its_updates(tmp_path, monkeypatch):
+    base = dict(env=EnvConfig(max_episode_steps=15), episodes=2, learning_starts=5, target_update_steps=20)
+    calls = []
+    set_priorities = dqn.ReplayBuffer.set_priorities
+
+    def recorded(buffer, indices, errors):
+        calls.append(len(indices))
+        set_priorities(buffer, indices, errors)
+        calls.append(buffer.priorities[: buffer.size].copy())
+
+    monkeypatch.setattr(dqn.ReplayBuffer, "set_priorities", recorded)
+    result = dqn.train(dqn.Args(**base, priority_exponent=0.6, run_dir=str(tmp_path)), progress=False)
+    assert calls and calls[0] == 32  # each update's batch
+    assert len(set(np.round(calls[-1], 6))) > 2  # the TD errors, not the first priority, rank the transitions
+    assert not math.isnan(result["history"][-1]["td_loss"])
 
 
 def test_snapshots_average_the_last_networks_of_one_unchanged_training_run(tmp_path):
