@@ -88,42 +88,38 @@ def looks_in_success(box: np.ndarray, success_fraction: float, center_tol: float
     return (box[:, 2] > 0) & ~cut_by_border(box) & (share >= success_fraction) & (np.hypot(dx, dy) <= center_tol)
 
 
-def directions_option(env, name: str):
+_REQUIRED = object()
+
+
+def directions_option(env, name: str, default=_REQUIRED):
     """An option of the env's wrappers (`DiscreteDirections`, `BoxState`; a vector env's first worker's), as its
-    policies read it."""
-    return env.get_wrapper_attr(name) if hasattr(env, "get_wrapper_attr") else env.get_attr(name)[0]
+    policies read it; `default` where no wrapper has it (without one, an AttributeError)."""
+    try:
+        return env.get_wrapper_attr(name) if hasattr(env, "get_wrapper_attr") else env.get_attr(name)[0]
+    except AttributeError:
+        if default is _REQUIRED:
+            raise
+        return default
 
 
 def back_when_close(env) -> float:
     """The env's `back_when_close` (0 where it has none)."""
-    try:
-        return float(directions_option(env, "back_when_close"))
-    except AttributeError:
-        return 0.0
+    return float(directions_option(env, "back_when_close", 0.0))
 
 
 def explore_resumes_after(env) -> int:
     """The env's `explore_resumes_after` (0 where it has none)."""
-    try:
-        return int(directions_option(env, "explore_resumes_after"))
-    except AttributeError:
-        return 0
+    return int(directions_option(env, "explore_resumes_after", 0))
 
 
 def candidate_threshold(env) -> float:
     """The env's `BoxState.candidate_threshold`: > 0 where it reports candidates (0 where it has none)."""
-    try:
-        return float(directions_option(env, "candidate_threshold"))
-    except AttributeError:
-        return 0.0
+    return float(directions_option(env, "candidate_threshold", 0.0))
 
 
 def stay_needs_success(env) -> bool:
     """The env's `stay_needs_success` (False where it has none)."""
-    try:
-        return bool(directions_option(env, "stay_needs_success"))
-    except AttributeError:
-        return False
+    return bool(directions_option(env, "stay_needs_success", False))
 
 
 def stay_rule(env, num_actions: int) -> tuple[float, float] | None:
