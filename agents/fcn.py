@@ -361,6 +361,7 @@ class OneShotFCN(nn.Module):
         previous: torch.Tensor | None = None,
         thresholds: tuple[float, float] = (0.0, 0.0),
         border_bar_near_previous: bool = False,
+        track_below: float = 0.0,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(`predict`'s mask, presence probability (N,)): the presence head's "target in view" probability, or
         for a model without one 1.0 where the mask is not empty and 0.0 where it is.
@@ -373,6 +374,11 @@ class OneShotFCN(nn.Module):
         region cut by the image's border gets the verifier's low bar for such regions (`verifier_cut_threshold`) only
         near the previous step's region, in images that have one; elsewhere it needs the acquire bar (a look-alike
         entering by one border while the target is tracked at another is not taken up at the low bar).
+        `track_below` (a share of the image, 0: off): the track bar only for regions smaller than that; a larger one
+        near the previous region needs the acquire bar too. Up close the verifier tells the target from a look-alike
+        (on `dqn.pt`'s frames of two held-out sets, regions of 5% of the image or more score under 0.97 on 0.2% of the
+        target's frames and 98% of the look-alikes'), so one tracked from afar is dropped once approached
+        (docs/control.md §36).
 
         `runtime`: "torch" runs the model eagerly; "onnxruntime" runs the same graphs (network and verifier)
         exported from the current weights (`fcn_runtime`: 2-4x faster at batch 1, masks equal up to float
@@ -381,6 +387,8 @@ class OneShotFCN(nn.Module):
         if runtime not in RUNTIMES:
             raise ValueError(f"runtime {runtime!r} is not one of: {', '.join(RUNTIMES)}")
         check_thresholds(thresholds)
+        if not 0 <= track_below < 1:
+            raise ValueError(f"track_below={track_below!r} must be in [0, 1) (0: off): a share of the image")
         scene = uint8_images(scene_rgb, "scene_rgb")
         target = uint8_images(target_rgb, "target_rgb")
         if len(scene) != len(target):
@@ -414,6 +422,7 @@ class OneShotFCN(nn.Module):
                 previous=previous,
                 thresholds=thresholds,
                 border_bar_near_previous=border_bar_near_previous,
+                track_below=track_below,
                 runtime=runtime,
             )
             return mask, presence
@@ -435,12 +444,13 @@ class OneShotFCN(nn.Module):
         previous: torch.Tensor | None = None,
         thresholds: tuple[float, float] = (0.0, 0.0),
         border_bar_near_previous: bool = False,
+        track_below: float = 0.0,
         runtime: str = "auto",
     ):
         """(mask of the candidate regions the verifier accepts (with `best_only`, the most probable of them),
         the best region's probability (N,)) of uint8 scenes (N, H, W, 3), normalised targets (N, 3, h, w) and
         the segmentation's masks (N, H, W); `weights` is `_weights_key()` (keys the target crop's encoding);
-        `previous`, `thresholds`, `border_bar_near_previous`: `predict_with_presence`'s; `runtime` as there (the
+        `previous`, `thresholds`, `border_bar_near_previous`, `track_below`: `predict_with_presence`'s; `runtime` as there (the
         crops and the target's encoding stay torch's)."""
         if not mask.any():  # no candidate region in any image (~40% of an episode's frames): nothing to verify
             return torch.zeros_like(mask, device=scene_rgb.device), torch.zeros(len(mask), device=scene_rgb.device)
@@ -454,6 +464,9 @@ class OneShotFCN(nn.Module):
             previous = previous.to(logits.device)
             near = near_previous(candidates["boxes"], candidates["image"], previous)
             threshold[near] = track
+            if track_below:  # up close, the acquire bar again
+                large = candidates["sizes"].to(logits.device) >= track_below * mask.shape[1] * mask.shape[2]
+                threshold[near & large] = acquire
         if self.config.verifier_cut_share:
             cut = cut_regions(candidates, mask.shape[1:], self.config.verifier_cut_share).to(logits.device)
             if border_bar_near_previous and previous is not None:  # images that track nothing keep the low bar

@@ -158,6 +158,19 @@ def box_array(obs) -> np.ndarray:
     return np.atleast_2d(array).astype(np.float32)
 
 
+def sweep_moves(env) -> np.ndarray | None:
+    """Where the env says so (`EnvConfig.sweep_retraces`), each of its actions' (forward, up) in full steps, for a
+    sweep that undoes an approach before it orbits on (`Sweep.moved`); None where it does not."""
+    if not directions_option(env, "sweep_retraces", False):
+        return None
+    names = action_names_for(num_actions(env))
+    scale = float(directions_option(env, "fine_step", 0.0)) / float(directions_option(env, "step_size"))
+    axes = {"forward": (1, 0), "backward": (-1, 0), "up": (0, 1), "down": (0, -1)}
+    return np.array(
+        [np.multiply(axes.get(n.removesuffix("_fine"), (0, 0)), scale if n in FINE else 1.0) for n in names]
+    )
+
+
 def num_actions(env) -> int:
     """How many discrete actions the env takes: 6 directions, 7 with `stay`, 12 or 13 with the fine moves
     (`action_names_for`; batched or not)."""
@@ -295,13 +308,27 @@ class Sweep:
     `first_turn`, after that many orbit steps the first time. With a `lead_in` (directions, e.g. LOOK_OVER), take
     those first."""
 
-    def __init__(self, num_envs: int, first: int = LEFT, lead_in: tuple[int, ...] = (), first_turn: int = 0):
+    def __init__(
+        self,
+        num_envs: int,
+        first: int = LEFT,
+        lead_in: tuple[int, ...] = (),
+        first_turn: int = 0,
+        moves: np.ndarray | None = None,
+    ):
         self.first = first
         self.lead_in = np.asarray(lead_in, dtype=np.int64)
         self.first_turn = first_turn
         self.direction = np.full(num_envs, first)
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self.turned = np.zeros(num_envs, dtype=bool)
+        self.moves = moves  # (actions, 2): each env action's (forward, up) in full steps; None: no retrace
+        self.away = np.zeros((num_envs, 2))  # the camera's (forward, up) from the orbit, in full steps
+        self.last_move = np.zeros((num_envs, 2))
+        self.retrace = np.zeros(num_envs, dtype=bool)  # this step's sweep action undoes the approach
+        self.retraced = np.zeros(num_envs, dtype=bool)  # the owner took it at the last step
+        self.action = np.zeros(num_envs, dtype=np.int64)  # this step's sweep action
+        self.led = np.zeros(num_envs, dtype=bool)  # this step's sweep action is the lead-in's
 
     @classmethod
     def looking_over(cls, num_envs: int, first: int = LEFT) -> Sweep:
@@ -312,21 +339,58 @@ class Sweep:
         self.direction[:] = self.first
         self.steps[:] = 0
         self.turned[:] = False
+        self.away[:] = 0
+        self.last_move[:] = 0
+        self.retrace[:] = False
+        self.retraced[:] = False
+
+    def moved(self, action: np.ndarray) -> None:
+        """Count the env actions (N,) the owner takes this step, so that the sweep can first undo an approach that
+        left the orbit (`moves`; the refusal of a step is taken back at the next `act`)."""
+        if self.moves is None:
+            return
+        self.retraced = self.retrace & (action == self.action)
+        self.last_move = self.moves[action] * ~self.led[:, None]  # the lead-in's moves make the orbit's height
+        self.away += self.last_move
+
+    def _refused(self, refused: np.ndarray) -> None:
+        """Take back the last step's move where it was refused; a refused retrace step stops undoing that way."""
+        if self.moves is None:
+            return
+        self.away -= self.last_move * refused[:, None]
+        stuck = refused & self.retraced
+        self.away[stuck] = np.where(self.last_move[stuck] != 0, 0, self.away[stuck])
+
+    def _retrace(self, action: np.ndarray) -> np.ndarray:
+        """`action` with a step back toward the orbit where the camera has left it by half a step or more."""
+        if self.moves is None:
+            return action
+        forward, up = self.away[:, 0], self.away[:, 1]
+        back = np.abs(forward) >= 0.5
+        level = ~back & (np.abs(up) >= 0.5)
+        action[back] = np.where(forward[back] > 0, BACKWARD, FORWARD)
+        action[level] = np.where(up[level] > 0, DOWN, UP)
+        self.retrace = back | level
+        return action
 
     def leading(self) -> np.ndarray:
         """(N,) bool: the next action is the lead-in's (a sighting does not cut it short: `ExplorePolicy`)."""
         return self.steps < len(self.lead_in)
 
     def act(self, info) -> np.ndarray:
-        # a refusal turns the orbit only when the refused step was an orbit step, not the lead-in's
-        turn = info_flags(info, "refused", len(self.direction)) & (self.steps > len(self.lead_in))
+        refused = info_flags(info, "refused", len(self.direction))
+        self._refused(refused)
+        # a refusal turns the orbit only when the refused step was an orbit step, not the lead-in's or a retrace's
+        turn = refused & (self.steps > len(self.lead_in)) & ~self.retraced
         if self.first_turn:
             turn |= (self.steps - len(self.lead_in) == self.first_turn) & ~self.turned
         self.direction[turn] = np.where(self.direction[turn] == LEFT, RIGHT, LEFT)
         self.turned |= turn
-        action = self.direction.copy()
+        action = self._retrace(self.direction.copy())
         leading = self.leading()
         action[leading] = self.lead_in[self.steps[leading]]
+        self.retrace &= ~leading
+        self.action, self.led = action.copy(), leading  # the owners take the lead-in whole
         self.steps += 1
         return action
 
@@ -410,6 +474,7 @@ class ServoPolicy:
         lead_in = look_over if lead_in is None else lead_in
         first = DIRECTIONS.index(first_sweep)
         self.sweep = Sweep.looking_over(self.num_envs, first) if lead_in else Sweep(self.num_envs, first)
+        self.sweep.moves = sweep_moves(env)
         if hold and num_actions(env) == len(DIRECTIONS):
             raise ValueError("ServoPolicy(hold=True) takes `stay`: make the env with stay_action")
         self.hold, self.hold_limits = hold, hold_limits
@@ -456,6 +521,7 @@ class ServoPolicy:
             action[served & near_target(box, self.zone)] += self.fine_offset
         if self.hold:
             action[in_success_with_margin(info, self.num_envs, self.hold_limits)] = STAY_INDEX
+        self.sweep.moved(action)
         return action.astype(np.int64)
 
 
@@ -485,6 +551,7 @@ class ExplorePolicy:
         if first_turn < 0 or (first_turn and look_over):
             raise ValueError(f"first_turn={first_turn} must be >= 0, and 0 with look_over (LOOK_OVER_TURN)")
         self.sweep = Sweep.looking_over(self.num_envs) if look_over else Sweep(self.num_envs, first_turn=first_turn)
+        self.sweep.moves = sweep_moves(env)
         self.handed_over = np.zeros(self.num_envs, dtype=bool)
         self.resumes_after = explore_resumes_after(env)
         self.unseen_for = np.zeros(self.num_envs, dtype=np.int64)  # steps in a row with an empty box
@@ -520,6 +587,7 @@ class ExplorePolicy:
             action = np.where(approach, self.approach.act(box, {}), action)
         if handed_over.any():
             action = np.where(handed_over, self.then.act(obs, info), action)
+        self.sweep.moved(action)
         return action.astype(np.int64)
 
 

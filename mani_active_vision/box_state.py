@@ -47,6 +47,8 @@ class BoxState(gym.ObservationWrapper):
     `thresholds`: for `source="fcn"` with a verifier, (acquire, track): the verifier probability a new region
     needs, and one near the region kept at the previous step of the same episode (0: the checkpoint's
     `verifier_threshold`; `OneShotFCN.predict_with_presence`). (0, 0): every frame judged alone.
+    `track_below_area`: with `thresholds`, the track bar only for regions covering less than this share of the image;
+    larger ones need the acquire bar (0: off; `OneShotFCN.predict_with_presence(track_below=...)`, docs/control.md §36).
     `hold_steps`: while the mask is empty, the last box seen in the episode is given for up to this many steps
     (the mask and presence stay the source's own; `info["box_held"]` says where the box is a held one); 0: off.
     `hold_follows_camera`: the held box moves as the camera does, as the ground truth's box would: where the box was
@@ -85,6 +87,7 @@ class BoxState(gym.ObservationWrapper):
         hold_drop_centred: int = 0,
         border_bar_near_box: bool = False,
         candidate_threshold: float = 0.0,
+        track_below_area: float = 0.0,
     ):
         super().__init__(env)
         check_thresholds(thresholds)
@@ -119,6 +122,11 @@ class BoxState(gym.ObservationWrapper):
                 f"candidate_threshold={candidate_threshold!r} must be in [0, 1) (0: off), and needs source 'fcn' (got "
                 f"{source!r}): candidates are regions the FCN's verifier turned away"
             )
+        if not 0 <= track_below_area < 1 or (track_below_area and not (source == "fcn" and any(thresholds))):
+            raise ValueError(
+                f"track_below_area={track_below_area!r} must be in [0, 1) (0: off), and needs source 'fcn' (got "
+                f"{source!r}) and thresholds (acquire, track) other than (0, 0) (got {thresholds}): it limits the track bar"
+            )
         if source == "fcn" and segmenter is None:
             raise ValueError(
                 "BoxState(source='fcn') needs segmenter= (e.g. mani_active_vision.agents.fcn.load_pretrained())"
@@ -137,6 +145,7 @@ class BoxState(gym.ObservationWrapper):
         self.hold_drop_centred = hold_drop_centred
         self.border_bar_near_box = border_bar_near_box
         self.candidate_threshold = candidate_threshold
+        self.track_below_area = track_below_area
         self.last_candidate_box: torch.Tensor | None = None  # (N, 4): this step's candidates as reported (or zeros)
         self._after_candidate: torch.Tensor | None = None  # (N,) bool: the previous step had a candidate
         self._camera: tuple | None = None  # this step's camera: extrinsic, intrinsic (OpenCV axes), image width
@@ -199,7 +208,10 @@ class BoxState(gym.ObservationWrapper):
             if any(self.thresholds):
                 previous = self._tracked_mask() if self.border_bar_near_box else self.last_mask
                 tracking = dict(
-                    previous=previous, thresholds=self.thresholds, border_bar_near_previous=self.border_bar_near_box
+                    previous=previous,
+                    thresholds=self.thresholds,
+                    border_bar_near_previous=self.border_bar_near_box,
+                    track_below=self.track_below_area,
                 )
             if self.candidate_threshold:
                 mask, presence = self._segment_after_candidates(rgb, target, tracking)

@@ -139,7 +139,8 @@ class DiscreteDirections(gym.ActionWrapper):
     `fine_near_centre` and `fine_from_area` are where policies take the fine moves (`agents.policies.near_target`):
     they are kept here, with the moves, so that a policy reads them from the env it acts in
     (`agents.policies.fine_zone`), as it reads `back_when_close` (`agents.policies.too_close`),
-    `stay_needs_success` (`agents.policies.stay_rule`) and `explore_resumes_after` (`agents.policies.ExplorePolicy`).
+    `stay_needs_success` (`agents.policies.stay_rule`), `explore_resumes_after` (`agents.policies.ExplorePolicy`) and
+    `sweep_retraces` (`agents.policies.sweep_moves`).
     """
 
     def __init__(
@@ -152,6 +153,7 @@ class DiscreteDirections(gym.ActionWrapper):
         back_when_close: float = 0.0,
         stay_needs_success: bool = False,
         explore_resumes_after: int = 0,
+        sweep_retraces: bool = False,
     ):
         super().__init__(env)
         base = env.unwrapped
@@ -165,6 +167,7 @@ class DiscreteDirections(gym.ActionWrapper):
         self.fine_step, self.fine_near_centre, self.fine_from_area = fine_step, fine_near_centre, fine_from_area
         self.back_when_close = back_when_close
         self.stay_needs_success, self.explore_resumes_after = stay_needs_success, explore_resumes_after
+        self.sweep_retraces = bool(sweep_retraces)
         self.names = action_names(stay_action, fine_step > 0)
         n = len(self.names)
         self.action_space = gym.spaces.MultiDiscrete([n] * self.num_envs) if self._batched else gym.spaces.Discrete(n)

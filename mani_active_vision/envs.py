@@ -147,6 +147,11 @@ class EnvConfig:
     """with box_hold_steps, the held box moves as the camera does (as the ground truth's box would), anchored where
     its centre's ray met the floor, and stays at the image's border once the target has left by it; off: it stays
     where it was last seen. The shipped DQNs are deployed with it (docs/control.md §25)"""
+    fcn_track_below_area: float = 0.0
+    """box_source=fcn with the verifier's bars: the track bar only for regions covering less than this share of the
+    image; a larger region, even near the tracked box, needs the acquire bar (0: off; other box sources: no effect).
+    Up close the verifier tells a look-alike from the target, so one tracked from afar is dropped once approached
+    (docs/control.md §36; not in the deployment)"""
     fcn_border_bar_near_box: bool = False
     """box_source=fcn with the verifier's bars: a region cut by the image's border gets the verifier's low bar for
     such regions only near the previous step's box, kept or held; elsewhere it needs the acquire bar, so that a
@@ -190,6 +195,10 @@ class EnvConfig:
     state has been empty (nothing seen, nothing held) for this many steps in a row, the exploration orbits again until
     the next sighting (0: never, the paper's single hand-over). The shipped DQNs are deployed with
     DQN_EXPLORE_RESUMES_AFTER (docs/control.md §31)"""
+    sweep_retraces: bool = False
+    """the scripted sweeps (the exploration's and the servo's, `agents.policies.Sweep`) first undo the forward and
+    up/down steps taken since they last orbited (an approach to a box that was then lost, e.g. a look-alike's), then
+    orbit on: the orbit sees the objects from its own distance again (docs/control.md §36; not in the deployment)"""
     stay_needs_success: bool = False
     """a learned policy with `stay` (the DQN, the memory agent) takes it only where the box source's mask stats say
     the view is in success (its share of the image at least success_fraction, its centroid within
@@ -216,6 +225,8 @@ class EnvConfig:
         for name in ("fcn_acquire_threshold", "fcn_track_threshold"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be in [0, 1) (0: the checkpoint's)")
+        if not 0 <= self.fcn_track_below_area < 1:
+            raise ValueError(f"fcn_track_below_area={self.fcn_track_below_area!r} must be in [0, 1) (0: off)")
         if not 0 <= self.fcn_candidate_threshold < 1:
             raise ValueError(f"fcn_candidate_threshold={self.fcn_candidate_threshold!r} must be in [0, 1) (0: off)")
         if not (isinstance(self.box_hold_steps, int) and self.box_hold_steps >= 0):
@@ -240,6 +251,15 @@ class EnvConfig:
             raise ValueError(
                 "fcn_border_bar_near_box restricts the verifier's low bar to the tracked box: on the FCN's box it "
                 "needs fcn_acquire_threshold or fcn_track_threshold set, which track it (got 0.0, 0.0)"
+            )
+        if (
+            self.fcn_track_below_area
+            and self.box_source == "fcn"
+            and not (self.fcn_acquire_threshold or self.fcn_track_threshold)
+        ):
+            raise ValueError(
+                "fcn_track_below_area limits the verifier's track bar: on the FCN's box it needs fcn_acquire_threshold "
+                "or fcn_track_threshold set (got 0.0, 0.0)"
             )
         check_direction_options(
             self.step_size,
@@ -338,6 +358,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         back_when_close=config.back_when_close,
         stay_needs_success=config.stay_needs_success,
         explore_resumes_after=config.explore_resumes_after,
+        sweep_retraces=config.sweep_retraces,
     )
     if config.box_source == "none":
         return env
@@ -356,6 +377,7 @@ def wrap_env(env: gym.Env, config: EnvConfig, segmenter=None) -> gym.Env:
         hold_drop_centred=config.box_hold_drop_centred,
         border_bar_near_box=config.fcn_border_bar_near_box and config.box_source == "fcn",
         candidate_threshold=config.fcn_candidate_threshold if config.box_source == "fcn" else 0.0,
+        track_below_area=config.fcn_track_below_area if config.box_source == "fcn" else 0.0,
     )
 
 

@@ -35,6 +35,7 @@ from mani_active_vision.agents.policies import (
     Sweep,
     make_policy,
     policy_kwargs,
+    sweep_moves,
 )
 from mani_active_vision.agents.q_network import QNetwork, load_q_network, save_q_network
 from mani_active_vision.box_state import BoxState
@@ -213,6 +214,56 @@ def test_the_exploration_resumes_after_an_empty_box_where_the_env_says_so():
     assert ExplorePolicy(mav.DiscreteDirections(cached_task(start_pose="search", obs_mode="rgb"))).resumes_after == 0
     with pytest.raises(ValueError, match="explore_resumes_after=-1 must be an integer of at least 0"):
         mav.EnvConfig(explore_resumes_after=-1)
+
+
+def test_the_track_bar_below_an_area_is_validated_and_reaches_the_box_state():
+    with pytest.raises(ValueError, match=r"fcn_track_below_area=1.5 must be in \[0, 1\)"):
+        EnvConfig(fcn_track_below_area=1.5)
+    with pytest.raises(ValueError, match="fcn_track_below_area limits the verifier's track bar"):
+        EnvConfig(box_source="fcn", fcn_track_below_area=0.05)  # no bars: nothing is tracked
+    env = mav.DiscreteDirections(cached_task(start_pose="search", obs_mode="rgb"))
+    with pytest.raises(ValueError, match="track_below_area=0.05 must be in"):
+        BoxState(env, source="fcn", segmenter=object(), track_below_area=0.05)  # no bars
+    config = EnvConfig(box_source="fcn", fcn_acquire_threshold=0.97, fcn_track_threshold=0.9, fcn_track_below_area=0.05)
+    box_state = mav.envs.wrap_env(cached_task(start_pose="search", obs_mode="rgb"), config, segmenter=object())
+    assert box_state.track_below_area == 0.05
+
+
+def test_the_sweep_retraces_an_approach_before_it_orbits_on_where_the_env_says_so():
+    """With `EnvConfig.sweep_retraces` the sweep first undoes the forward and up/down steps its owner took since it
+    last orbited (fine moves count as their share of a step), a refused step is not counted, and a refused retrace
+    step neither turns the orbit nor is tried again."""
+    task = cached_task(start_pose="search", obs_mode="rgb")
+    assert sweep_moves(mav.DiscreteDirections(task, fine_step=0.025)) is None  # off by default: the paper's sweep
+    moves = sweep_moves(mav.DiscreteDirections(task, fine_step=0.025, sweep_retraces=True))
+    names = mav.DiscreteDirections(task, fine_step=0.025).names
+    assert moves[names.index("forward")].tolist() == [1, 0] and moves[names.index("down")].tolist() == [0, -1]
+    assert moves[names.index("forward_fine")].tolist() == pytest.approx([0.025 / task.unwrapped.step_size, 0])
+    assert moves[names.index("left")].tolist() == [0, 0]
+    free, refused = {"refused": np.array([False])}, {"refused": np.array([True])}
+    sweep = Sweep(1, moves=moves)
+
+    def step(info, owner=None):  # the sweep's action, and the owner's (its own where None) counted
+        action = sweep.act(info)
+        sweep.moved(np.array([owner]) if owner is not None else action)
+        return int(action[0])
+
+    assert step(free, FORWARD) == LEFT  # the owner approaches: forward, up, and a forward that is refused
+    assert step(free, UP) == BACKWARD
+    assert step(free, FORWARD) == BACKWARD
+    # the refused forward is taken back (and, as any refused step not the sweep's retrace, turns the orbit)
+    assert [step(refused), step(free), step(free), step(free)] == [BACKWARD, DOWN, RIGHT, RIGHT]
+    sweep.reset()
+    step(free, FORWARD)
+    assert [step(free), step(refused), step(free)] == [BACKWARD, LEFT, LEFT]  # blocked: the orbit on, not turned
+    env = mav.DiscreteDirections(task, explore_resumes_after=2, sweep_retraces=True)
+    explore = ExplorePolicy(
+        env, then=types.SimpleNamespace(act=lambda obs, info: np.array([FORWARD]), reset=lambda obs, info: None)
+    )
+    unseen, seen = torch.zeros(1, 4), torch.tensor([[0.4, 0.4, 0.1, 0.1]])
+    explore.reset(unseen, {})
+    acts = [int(explore.act(box, free)[0]) for box in (seen, unseen, unseen, unseen, unseen, unseen)]
+    assert acts == [FORWARD, FORWARD, BACKWARD, BACKWARD, LEFT, LEFT]  # the hand-over's approach undone, then orbit
 
 
 def test_the_servo_and_the_exploration_approach_a_candidate_for_a_few_steps_within_a_budget():

@@ -150,6 +150,11 @@ def test_predict_tracks_a_region_whose_score_dips_under_the_threshold():
         scene, target, largest_component=True, previous=kept, thresholds=(0.0, 0.4)
     )
     assert tracked.all() and presence.item() == pytest.approx(0.5)
+    # with track_below, a region covering that share of the image or more needs the acquire bar (0.9) again
+    up_close = model.predict_with_presence(scene, target, True, previous=kept, thresholds=(0.0, 0.4), track_below=0.5)
+    assert not up_close[0].any() and up_close[1].item() == pytest.approx(0.5)
+    with pytest.raises(ValueError, match=r"track_below=1.0 must be in \[0, 1\)"):
+        model.predict_with_presence(scene, target, True, previous=kept, thresholds=(0.0, 0.4), track_below=1.0)
     nothing_kept = torch.zeros_like(kept)
     assert not model.predict_with_presence(scene, target, True, previous=nothing_kept, thresholds=(0, 0.4))[0].any()
     assert (
