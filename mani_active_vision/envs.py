@@ -243,24 +243,16 @@ class EnvConfig:
                 "box_hold_follows_camera moves a held box with the camera: it needs box_hold_steps > 0 (got "
                 f"{self.box_hold_steps}) and box_source ground_truth or fcn (got {self.box_source!r})"
             )
-        if (
-            self.fcn_border_bar_near_box
-            and self.box_source == "fcn"
-            and not (self.fcn_acquire_threshold or self.fcn_track_threshold)
+        untracked = self.box_source == "fcn" and not (self.fcn_acquire_threshold or self.fcn_track_threshold)
+        for name, what in (
+            ("fcn_border_bar_near_box", "restricts the verifier's low bar to the tracked box"),
+            ("fcn_track_below_area", "limits the verifier's track bar"),
         ):
-            raise ValueError(
-                "fcn_border_bar_near_box restricts the verifier's low bar to the tracked box: on the FCN's box it "
-                "needs fcn_acquire_threshold or fcn_track_threshold set, which track it (got 0.0, 0.0)"
-            )
-        if (
-            self.fcn_track_below_area
-            and self.box_source == "fcn"
-            and not (self.fcn_acquire_threshold or self.fcn_track_threshold)
-        ):
-            raise ValueError(
-                "fcn_track_below_area limits the verifier's track bar: on the FCN's box it needs fcn_acquire_threshold "
-                "or fcn_track_threshold set (got 0.0, 0.0)"
-            )
+            if untracked and getattr(self, name):
+                raise ValueError(
+                    f"{name} {what}: on the FCN's box it needs fcn_acquire_threshold or fcn_track_threshold set, "
+                    "which track it (got 0.0, 0.0)"
+                )
         check_direction_options(
             self.step_size,
             self.fine_step_size,
