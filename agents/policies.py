@@ -306,7 +306,9 @@ OVER_FILLS = 0.36
 class Sweep:
     """Orbit one way around the robot's axis; turn back when a step is refused (at joint 1's limit) or, with
     `first_turn`, after that many orbit steps the first time. With a `lead_in` (directions, e.g. LOOK_OVER), take
-    those first."""
+    those first. With `moves` (`sweep_moves`, where the env has `sweep_retraces`) its owner reports the actions it
+    takes (`moved`), and the sweep first steps back the forward and up/down steps taken off the orbit (an approach
+    to a box since lost), then orbits on (docs/control.md §36)."""
 
     def __init__(
         self,
