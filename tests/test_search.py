@@ -320,7 +320,13 @@ def test_dagger_on_workers_fits_the_teachers_labels(tmp_path):
 
 
 def test_in_an_env_with_the_fine_moves_the_learner_and_its_teachers_keep_seven_actions():
-    zone = {"fine_near_centre": FINE_NEAR_CENTRE, "fine_from_area": FINE_AREA[0]}.__getitem__  # as policies read them
+    options = {"fine_near_centre": FINE_NEAR_CENTRE, "fine_from_area": FINE_AREA[0]}
+
+    def zone(name):  # as policies read them; as gymnasium's get_wrapper_attr, an AttributeError for other names
+        if name not in options:
+            raise AttributeError(name)
+        return options[name]
+
     fine_env = types.SimpleNamespace(
         unwrapped=types.SimpleNamespace(num_envs=2), action_space=gym.spaces.Discrete(13), get_wrapper_attr=zone
     )
