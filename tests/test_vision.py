@@ -174,6 +174,31 @@ def test_shipped_weights_on_frames_from_rollouts(tmp_path):
     assert alone["false_positive_rate"] > SHIPPED_ROLLOUT["network_false_positive_rate"], alone
 
 
+def test_the_deployed_dqn_source_walks_its_checkpoints_env(tmp_path):
+    """The source that mines the deployed agent's hard negatives runs in its checkpoint's env (the FCN as
+    deployed), with the collection's objects, size and panels, and records its frames like the others."""
+    import dataclasses
+
+    from mani_active_vision.agents.q_network import checkpoint_env_config
+    from mani_active_vision.evaluation.rollout_frames import (
+        DEPLOYED_DQN,
+        SOURCES,
+        RolloutFramesConfig,
+        collect_rollout_frames,
+        source_env_config,
+    )
+
+    config = RolloutFramesConfig(object_set="train", sources=("dqn_fcn_sky",), episodes_per_source=1, frame_stride=25)
+    deployed = checkpoint_env_config(DEPLOYED_DQN["dqn_fcn_sky"])
+    expected = dataclasses.replace(deployed, object_set="train", start_pose="sky", image_size=128, fcn_weights="")
+    assert source_env_config("dqn_fcn_sky", config) == expected
+    assert expected.box_hold_steps > 0 and source_env_config("servo_fcn_sky", config).box_hold_steps == 0
+    collect_rollout_frames(str(tmp_path), config, progress=False)
+    data = load_segmentation_data(str(tmp_path))
+    assert (data["source"] == list(SOURCES).index("dqn_fcn_sky")).all()
+    assert data["step"].tolist() == [0, 25, 50, 75, 100] and data["scene"].shape == (5, 128, 128, 3)
+
+
 def _torch_margin(model, scene, target):
     """Score margin (target - background) of the torch model at the scene's size, as `predict` computes it."""
     with torch.inference_mode():

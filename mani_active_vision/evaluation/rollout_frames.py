@@ -16,6 +16,7 @@ j is reset with `seed + 1000 j + k`).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -23,7 +24,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from tqdm import tqdm
 
-from mani_active_vision.agents.policies import make_policy
+from mani_active_vision.agents.policies import make_policy, policy_kwargs
+from mani_active_vision.agents.q_network import checkpoint_env_config
 from mani_active_vision.envs import EnvConfig, make_env
 from mani_active_vision.evaluation.rollout import run_episode
 from mani_active_vision.json_io import save_json
@@ -35,14 +37,20 @@ SOURCES = {
     "random_search": ("random", "search", "ground_truth"),
     "servo_fcn_sky": ("servo", "sky", "fcn"),
     "servo_over_sky": ("servo", "sky", "ground_truth"),
+    "dqn_fcn_sky": ("explore", "sky", "fcn"),
 }
 """source name -> (policy, start pose, box source): the scripted servo, the paper's exploration handing over
 to it, and random directions from both start poses, on the ground-truth box; the servo on the shipped
 FCN's box, which approaches whatever the FCN marks (hard negatives mined by the model: close-ups of the
 look-alikes it mistakes for the target); and, for scenes with occluders, the servo that looks over the panels
-(`LOOKS_OVER`), which comes up to targets a panel partly hides. The test set uses the first four."""
+(`LOOKS_OVER`), which comes up to targets a panel partly hides; and the shipped DQN as deployed (`DEPLOYED_DQN`:
+the exploration handing over to it, in its checkpoint's env on the FCN's box), which walks up to the look-alikes
+the deployed agent takes up. The test set uses the first four."""
 LOOKS_OVER = ("servo_over_sky",)
 """the sources whose servo looks over the panels and approaches from above (`ServoPolicy(look_over=True)`)"""
+DEPLOYED_DQN = {"dqn_fcn_sky": "agents/weights/dqn.pt"}
+"""the sources that run the exploration handing over to a DQN, as it is deployed (its checkpoint's env config;
+the object set, image size, occluders and FCN weights are the collection's)"""
 RELATIONS = ("target", "identical twin", "same shape", "same colour", "other object")
 FLOOR, OCCLUDER, ROBOT = 0, 254, 255
 
@@ -141,24 +149,35 @@ def record_episode(env, policy, seed: int, stride: int, source: int) -> dict[str
     )
 
 
+def source_env_config(name: str, config: RolloutFramesConfig) -> EnvConfig:
+    """The env a source runs in: the defaults, or for a `DEPLOYED_DQN` source its checkpoint's env config; with the
+    collection's object set, image size and occluders, and the source's start pose and box."""
+    _, start_pose, box_source = SOURCES[name]
+    checkpoint = DEPLOYED_DQN.get(name, "")
+    return dataclasses.replace(
+        checkpoint_env_config(checkpoint) if checkpoint else EnvConfig(),
+        object_set=config.object_set,
+        start_pose=start_pose,
+        image_size=config.image_size,
+        box_source=box_source,
+        fcn_weights=config.fcn_weights if box_source == "fcn" else "",
+        occluders=config.occluders,
+    )
+
+
 def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: bool = True) -> dict:
     """Render the rollout-frame set into `out_dir` (one shard per source + manifest.json); returns the manifest."""
     os.makedirs(out_dir, exist_ok=True)
     start, shards = time.time(), []
     for j, name in enumerate(config.sources):
-        policy_name, start_pose, box_source = SOURCES[name]
+        policy_name = SOURCES[name][0]
         source = list(SOURCES).index(name)
-        env_config = EnvConfig(
-            object_set=config.object_set,
-            start_pose=start_pose,
-            image_size=config.image_size,
-            box_source=box_source,
-            fcn_weights=config.fcn_weights if box_source == "fcn" else "",
-            occluders=config.occluders,
-        )
-        env = make_env(env_config)
+        checkpoint = DEPLOYED_DQN.get(name, "")
+        env = make_env(source_env_config(name, config))
         try:
             kwargs = {"then": "servo"} if policy_name == "explore" else {}
+            if checkpoint:
+                kwargs = policy_kwargs("explore", "dqn", checkpoint, seed=config.seed)
             if name in LOOKS_OVER:
                 kwargs["look_over"] = True
             policy = make_policy(policy_name, env, **kwargs)
