@@ -35,3 +35,8 @@ cp runs/verifier/best.pt agents/weights/fcn.pt
 $PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $DATA/test_train $DATA/test_unseen --largest-component
 $PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $ROLLOUT/test_unseen --largest-component \
   --out outputs/fcn_eval_rollout.md --examples-png outputs/fcn_examples_rollout.png
+# the frames the shipped DQN sees as deployed (on this FCN's box, segmenting at 128²): rendered again for each FCN
+$PY baselines/collect_rollout_frames.py --out-dir $ROLLOUT/test_unseen_dqn --config.episodes-per-source 50 \
+  --config.sources dqn_fcn_sky
+$PY baselines/eval_fcn.py --weights agents/weights/fcn.pt --data-dirs $ROLLOUT/test_unseen_dqn --largest-component \
+  --segment-size 128 --out outputs/fcn_eval_dqn_frames.md --examples-png outputs/fcn_examples_dqn_frames.png
