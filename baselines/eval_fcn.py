@@ -59,6 +59,9 @@ class Args:
     segment_size: int = 0
     """the side the network segments each scene at (`FCNConfig.segment_size`; 0: the checkpoint's training
     size), e.g. 128 (envs.FCN_SEGMENT_SIZE) as `EnvConfig(fcn_segment_size=128)` deploys it"""
+    verifier_bars: tuple[float, ...] = ()
+    """for a model with a verifier: also a table of each data set at each of these bars in place of the
+    checkpoint's (e.g. 0.9 0.97, the shipped DQNs' track and acquire bars): what control meets at them"""
 
 
 SIZE_BINS = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1, 1.01)
@@ -166,10 +169,46 @@ def rollout_tables(model, data: dict, counts: dict, name: str, largest_component
     return lines
 
 
+def bar_table(model, datasets: dict, args: Args) -> list[str]:
+    """Markdown lines: each data set's IoU on targets of ≥ 20 px, miss rate and false-positive rate with the
+    verifier's bar at each of `args.verifier_bars` (the model's config is restored after)."""
+    if not args.verifier_bars:
+        return []
+    lines = [
+        "",
+        "At other verifier bars (the checkpoint's: "
+        f"{model.config.verifier_threshold}; regions cut by the border keep theirs):",
+        "",
+        "| data set | bar | IoU (≥20 px) | miss rate | FP rate (absent) |",
+        "|---|---|---|---|---|",
+    ]
+    config = model.config
+    try:
+        for data_dir, data in datasets.items():
+            for bar in args.verifier_bars:
+                model.config = dataclasses.replace(config, verifier_threshold=bar)
+                with torch.inference_mode():
+                    counts = dataset_counts(model, data, largest_component=args.largest_component)
+                metrics = summarize_counts(counts)
+                visible = counts["true"] >= 20
+                iou = summarize_counts({k: v[visible] for k, v in counts.items()})["target_iou"]
+                lines.append(
+                    f"| {data_dir} | {bar} | {iou:.3f} | {metrics['miss_rate']:.3f} | {metrics['false_positive_rate']:.3f} |"
+                )
+    finally:
+        model.config = config
+    return lines
+
+
 def main(args: Args):
     torch.set_num_threads(1)
     weights = args.weights or WEIGHTS_PATH
     model, checkpoint = load_checkpoint(weights)
+    if args.verifier_bars and model.verifier is None:
+        raise ValueError(f"--verifier-bars {args.verifier_bars}: {weights} has no verifier (its network alone)")
+    bad = [b for b in args.verifier_bars if not 0 < b < 1]
+    if bad:
+        raise ValueError(f"--verifier-bars {bad}: each bar must be in (0, 1)")
     if args.presence_threshold is not None:
         model.config = dataclasses.replace(model.config, presence_threshold=args.presence_threshold)
     if args.segment_size:
@@ -224,7 +263,7 @@ def main(args: Args):
         if "objects" in data:
             attribution += rollout_tables(model, data, counts, data_dir, args.largest_component)
         print(f"{data_dir}: {json.dumps(metrics)} ({time.time() - started:.0f} s)")
-    table = "\n".join(lines + by_size + attribution)
+    table = "\n".join(lines + by_size + attribution + bar_table(model, datasets, args))
     print(table)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:

@@ -283,3 +283,33 @@ def test_train_verifier_fine_tunes_a_shipped_verifier_from_its_weights(tmp_path,
         torch.testing.assert_close(tuned.state_dict()[name], value, atol=atol, rtol=0.0, msg=name)
     with pytest.raises(ValueError, match="crop, regions"):
         train_verifier.main(dataclasses.replace(args, crop=16))
+
+
+def test_eval_fcn_tables_the_verifier_at_other_bars(tmp_path, baseline_script):
+    """At the checkpoint's own bar the table gives the main table's miss and false-positive rates; a lower bar
+    accepts a superset of regions (misses fall or stay, false positives rise or stay)."""
+    from mani_active_vision.evaluation.rollout_frames import RolloutFramesConfig, collect_rollout_frames
+
+    eval_fcn = baseline_script("eval_fcn")
+    frames = tmp_path / "frames"
+    config = RolloutFramesConfig(episodes_per_source=1, frame_stride=10, seed=411_000)
+    collect_rollout_frames(str(frames), config, progress=False)
+    out = tmp_path / "eval.md"
+    args = eval_fcn.Args(
+        data_dirs=[str(frames)], out=str(out), examples_png=None, largest_component=True, verifier_bars=(0.3, 0.9, 0.99)
+    )
+    eval_fcn.main(args)
+    lines = out.read_text().splitlines()
+    main_row = next(line for line in lines if line.startswith(f"| {frames} |"))
+    cells = [c.strip() for c in main_row.strip("|").split("|")]
+    fp, miss = float(cells[7]), float(cells[9])  # the checkpoint's bar (0.9): COLUMNS' FP rate and miss rate
+    rows = {
+        float(c[1]): (float(c[3]), float(c[4]))
+        for c in ([x.strip() for x in line.strip("|").split("|")] for line in lines)
+        if len(c) == 5 and c[0] == str(frames)
+    }
+    assert set(rows) == {0.3, 0.9, 0.99} and rows[0.9] == (miss, fp)
+    assert rows[0.3][0] <= rows[0.9][0] <= rows[0.99][0] and rows[0.3][1] >= rows[0.9][1] >= rows[0.99][1]
+    assert rows[0.3] != rows[0.99]  # the bar moves something on these frames
+    with pytest.raises(ValueError, match=r"\(0, 1\)"):
+        eval_fcn.main(dataclasses.replace(args, verifier_bars=(1.5,)))
