@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from tqdm import tqdm
 
+from mani_active_vision.agents.fcn import WEIGHTS_PATH
 from mani_active_vision.agents.policies import make_policy, policy_kwargs
 from mani_active_vision.agents.q_network import checkpoint_env_config
 from mani_active_vision.envs import EnvConfig, make_env
@@ -48,9 +49,9 @@ the exploration handing over to it, in its checkpoint's env on the FCN's box), w
 the deployed agent takes up. The test set uses the first four."""
 LOOKS_OVER = ("servo_over_sky",)
 """the sources whose servo looks over the panels and approaches from above (`ServoPolicy(look_over=True)`)"""
-DEPLOYED_DQN = {"dqn_fcn_sky": "agents/weights/dqn.pt"}
-"""the sources that run the exploration handing over to a DQN, as it is deployed (its checkpoint's env config;
-the object set, image size, occluders and FCN weights are the collection's)"""
+DEPLOYED_DQN = {"dqn_fcn_sky": os.path.join(os.path.dirname(WEIGHTS_PATH), "dqn.pt")}
+"""the sources that run the exploration handing over to a DQN (the shipped `agents/weights/dqn.pt`), as it is
+deployed: its checkpoint's env config, with the collection's object set, image size, occluders and FCN weights"""
 RELATIONS = ("target", "identical twin", "same shape", "same colour", "other object")
 FLOOR, OCCLUDER, ROBOT = 0, 254, 255
 
