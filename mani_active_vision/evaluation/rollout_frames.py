@@ -176,9 +176,10 @@ def collect_rollout_frames(out_dir: str, config: RolloutFramesConfig, progress: 
         checkpoint = DEPLOYED_DQN.get(name, "")
         env = make_env(source_env_config(name, config))
         try:
-            kwargs = {"then": "servo"} if policy_name == "explore" else {}
             if checkpoint:
                 kwargs = policy_kwargs("explore", "dqn", checkpoint, seed=config.seed)
+            else:
+                kwargs = {"then": "servo"} if policy_name == "explore" else {}
             if name in LOOKS_OVER:
                 kwargs["look_over"] = True
             policy = make_policy(policy_name, env, **kwargs)
