@@ -59,6 +59,8 @@ class Args:
     """worker-process counts also measured with lavapipe's default threads, not pinned"""
     resets: int = 1000
     """resets with the same models for the memory measurement (0 skips it)"""
+    fcn_weights: str = ""
+    """an FCN checkpoint for the agent loop's rows ("": the shipped one, `agents/weights/fcn.pt`)"""
     gpu_envs: tuple[int, ...] = (64, 256, 1024)
     """num_envs for the GPU backend (measured only when CUDA is available)"""
     out: Path = field(default_factory=lambda: Path("outputs/benchmark"))
@@ -156,11 +158,14 @@ def subjects(args: Args) -> dict:
         "PyBullet reference, 128²",
     )
     table["agent loop: 1 env, 128² + FCN box + Q-network"] = (
-        lambda: Single(make_env(ours(128, box_source="fcn")), policy=QNetwork(4)),
+        lambda: Single(make_env(ours(128, box_source="fcn", fcn_weights=args.fcn_weights)), policy=QNetwork(4)),
         "PyBullet reference, 128²",
     )
     table["agent loop, the FCN segmenting at 128² (as the shipped DQN is deployed)"] = (
-        lambda: Single(make_env(ours(128, box_source="fcn", fcn_segment_size=FCN_SEGMENT_SIZE)), policy=QNetwork(4)),
+        lambda: Single(
+            make_env(ours(128, box_source="fcn", fcn_segment_size=FCN_SEGMENT_SIZE, fcn_weights=args.fcn_weights)),
+            policy=QNetwork(4),
+        ),
         "PyBullet reference, 128²",
     )
     for n in args.workers:
@@ -210,7 +215,8 @@ def main(args: Args):
         f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {os.cpu_count()} CPU cores "
         f"({platform.processor() or platform.machine()}), "
         f"{'GPU: ' + torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'}; "
-        f"{args.rounds} rounds x {args.steps} steps per subject, interleaved.",
+        f"{args.rounds} rounds x {args.steps} steps per subject, interleaved"
+        f"{'; the agent loop on ' + args.fcn_weights if args.fcn_weights else ''}.",
         "",
     ]
     log = lambda text: (print(text, flush=True), lines.append(text))
