@@ -64,6 +64,15 @@ class Args:
     checkpoint's (e.g. 0.9 0.97, the shipped DQNs' track and acquire bars): what control meets at them"""
 
 
+MIN_TARGET_PIXELS = 20
+"""the "IoU (≥20 px)" columns: samples with at least this many target pixels (fewer are where IoU is noise)"""
+
+
+def iou_20px(counts: dict) -> float:
+    """Target IoU over the samples of `counts` (`dataset_counts`) with at least MIN_TARGET_PIXELS target pixels."""
+    return summarize_counts({k: v[counts["true"] >= MIN_TARGET_PIXELS] for k, v in counts.items()})["target_iou"]
+
+
 SIZE_BINS = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1, 1.01)
 """edges of the target's share of the image for the IoU-by-size table"""
 COLUMNS = ("pixel_accuracy", "target_iou", "pooled_target_iou", "false_positive_rate", "box_error", "miss_rate")
@@ -147,10 +156,9 @@ def rollout_tables(model, data: dict, counts: dict, name: str, largest_component
             continue
         part = {k: v[sel] for k, v in counts.items()}
         m = summarize_counts(part)
-        m20 = summarize_counts({k: v[part["true"] >= 20] for k, v in part.items()})
         lines.append(
             f"| {source} | {int(sel.sum())} ({m['samples_with_target']}) | {m['target_iou']:.3f} | "
-            f"{m20['target_iou']:.3f} | {m['false_positive_rate']:.3f} | {m['box_error']:.3f} |"
+            f"{iou_20px(part):.3f} | {m['false_positive_rate']:.3f} | {m['box_error']:.3f} |"
         )
     if "visible_fraction" in data and (data["visible_fraction"] < MIN_VISIBLE_FRACTION).any():
         lines += ["", f"{name} by occlusion (frames with the target):", ""]
@@ -162,9 +170,8 @@ def rollout_tables(model, data: dict, counts: dict, name: str, largest_component
         ):
             part = {k: v[sel] for k, v in counts.items()}
             m = summarize_counts(part)
-            m20 = summarize_counts({k: v[part["true"] >= 20] for k, v in part.items()})
             lines.append(
-                f"| {label} | {int(sel.sum())} | {m['target_iou']:.3f} | {m20['target_iou']:.3f} | {m['miss_rate']:.3f} |"
+                f"| {label} | {int(sel.sum())} | {m['target_iou']:.3f} | {iou_20px(part):.3f} | {m['miss_rate']:.3f} |"
             )
     return lines
 
@@ -190,10 +197,8 @@ def bar_table(model, datasets: dict, args: Args) -> list[str]:
                 with torch.inference_mode():
                     counts = dataset_counts(model, data, largest_component=args.largest_component)
                 metrics = summarize_counts(counts)
-                visible = counts["true"] >= 20
-                iou = summarize_counts({k: v[visible] for k, v in counts.items()})["target_iou"]
                 lines.append(
-                    f"| {data_dir} | {bar} | {iou:.3f} | {metrics['miss_rate']:.3f} | {metrics['false_positive_rate']:.3f} |"
+                    f"| {data_dir} | {bar} | {iou_20px(counts):.3f} | {metrics['miss_rate']:.3f} | {metrics['false_positive_rate']:.3f} |"
                 )
     finally:
         model.config = config
@@ -203,12 +208,12 @@ def bar_table(model, datasets: dict, args: Args) -> list[str]:
 def main(args: Args):
     torch.set_num_threads(1)
     weights = args.weights or WEIGHTS_PATH
+    bad = [b for b in args.verifier_bars if not 0 < b < 1]
+    if bad:  # before the checkpoint is loaded
+        raise ValueError(f"--verifier-bars {bad}: each bar must be in (0, 1)")
     model, checkpoint = load_checkpoint(weights)
     if args.verifier_bars and model.verifier is None:
         raise ValueError(f"--verifier-bars {args.verifier_bars}: {weights} has no verifier (its network alone)")
-    bad = [b for b in args.verifier_bars if not 0 < b < 1]
-    if bad:
-        raise ValueError(f"--verifier-bars {bad}: each bar must be in (0, 1)")
     if args.presence_threshold is not None:
         model.config = dataclasses.replace(model.config, presence_threshold=args.presence_threshold)
     if args.segment_size:
@@ -243,8 +248,7 @@ def main(args: Args):
         datasets[data_dir], all_counts[data_dir] = data, counts
         large = counts["true"] >= 0.01 * counts["pixels"]
         metrics["target_iou_large"] = summarize_counts({k: v[large] for k, v in counts.items()})["target_iou"]
-        visible = counts["true"] >= 20
-        metrics["target_iou_20px"] = summarize_counts({k: v[visible] for k, v in counts.items()})["target_iou"]
+        metrics["target_iou_20px"] = iou_20px(counts)
         n = metrics["samples_with_target"] + metrics["samples_without_target"]
         values = " | ".join(
             f"{metrics[c]:.4f}" if c == "pixel_accuracy" else f"{metrics[c]:.3f}"
