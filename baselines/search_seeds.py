@@ -64,6 +64,10 @@ class Args:
     stay_needs_success: bool = False
     """the memory agents take `stay` only where the mask stats say success (`EnvConfig.stay_needs_success`, as
     `search_occluded.pt` is deployed; docs/task.md#occluders); their evaluations are kept in their own files"""
+    held_box_tracking: bool = False
+    """every policy on the FCN's box with the held box moving as the camera does and dropped once centred and unseen
+    (`EnvConfig.with_held_box_tracking`, as `search_occluded.pt` is deployed; docs/task.md#occluders); these
+    evaluations are kept in their own files"""
     dqn_checkpoint: str = "agents/weights/dqn_hold_demo_wide.pt"
     """the DQN of the baselines (explore -> dqn, and dqn without exploration): the teacher's"""
     out_dir: str = "runs/search_seeds"
@@ -121,9 +125,13 @@ def train_seed(args: Args, seed: int):
 def eval_config(base: EnvConfig, args: Args, box: str, thresholds: tuple[float, float] | None = None) -> EnvConfig:
     """`base` on the evaluation objects, the training scenes' occluders (so that the baselines and the SPL's
     reference play the agents' scenes) and this box: the FCN's as deployed (`EnvConfig.on_fcn_box`, with
-    `thresholds` the verifier's bars), or the ground truth's as it is (nothing held)."""
+    `thresholds` the verifier's bars, with `held_box_tracking` the held box tracking the camera), or the ground
+    truth's as it is (nothing held)."""
     base = base.replace(object_set=args.eval_object_set, occluders=args.train.env.occluders)
-    return base.on_fcn_box(thresholds) if box == "fcn" else base.replace(box_source=box, box_hold_steps=0)
+    if box != "fcn":
+        return base.replace(box_source=box, box_hold_steps=0)
+    base = base.on_fcn_box(thresholds)
+    return base.with_held_box_tracking() if args.held_box_tracking else base
 
 
 def references(args: Args, box: str) -> dict[int, float]:
@@ -139,7 +147,7 @@ def references(args: Args, box: str) -> dict[int, float]:
         finally:
             env.close()
 
-    name = f"reference_{box}{bars_suffix(args, box)}_{args.eval_episodes}.json"
+    name = f"reference_{box}{box_suffix(args, box)}_{args.eval_episodes}.json"
     value = cached(os.path.join(args.out_dir, name), compute)
     return {int(k): math.nan if v is None else v for k, v in value.items()}
 
@@ -165,7 +173,7 @@ def baselines(args: Args, box: str) -> dict[str, dict]:
     """The baselines' evaluations on this box: explore -> dqn (the teacher, with its sweep; and with the default
     sweep where the teacher's turns earlier), servo, dqn without exploration."""
     dqn_env = eval_config(checkpoint_env_config(args.dqn_checkpoint), args, box)
-    suffix = f"{box}{bars_suffix(args, box)}_{args.eval_episodes}.json"
+    suffix = f"{box}{box_suffix(args, box)}_{args.eval_episodes}.json"
     out = {}
     teacher = dict(then="dqn", checkpoint=args.dqn_checkpoint)
     runs = [("explore → dqn (the teacher)", "explore", "explore", teacher | sweep_kwargs(args))]
@@ -193,14 +201,15 @@ def barred(args: Args, box: str) -> bool:
     return box == "fcn" and any(args.fcn_thresholds)
 
 
-def bars_suffix(args: Args, box: str) -> str:
-    """Evaluations (and references) with the verifier's bars are kept in their own files."""
-    return "_bars{:g}_{:g}".format(*args.fcn_thresholds) if barred(args, box) else ""
+def box_suffix(args: Args, box: str) -> str:
+    """Evaluations (and references) with the verifier's bars or the held box tracking are kept in their own files."""
+    bars = "_bars{:g}_{:g}".format(*args.fcn_thresholds) if barred(args, box) else ""
+    return bars + ("_tracking" if box == "fcn" and args.held_box_tracking else "")
 
 
 def memory_path(args: Args, seed: int, box: str) -> str:
     stay = "_stay_needs_success" if args.stay_needs_success else ""
-    return os.path.join(seed_dir(args, seed), f"eval_{box}{bars_suffix(args, box)}{stay}_{args.eval_episodes}.json")
+    return os.path.join(seed_dir(args, seed), f"eval_{box}{box_suffix(args, box)}{stay}_{args.eval_episodes}.json")
 
 
 def evaluate_seed(args: Args, seed: int, box: str) -> dict:
@@ -372,7 +381,8 @@ def main(args: Args):
     text = []
     for box in args.boxes:
         bars = " (memory agents with the verifier's bars {:g}, {:g})".format(*args.fcn_thresholds)
-        text.append(f"### {box} box{bars if barred(args, box) else ''}\n\n{table(args, box)}\n")
+        tracking = ", the held box tracking the camera" if box == "fcn" and args.held_box_tracking else ""
+        text.append(f"### {box} box{bars if barred(args, box) else ''}{tracking}\n\n{table(args, box)}\n")
     note = (
         f"({args.eval_episodes} evaluation episodes per agent from seed 1,000,000, {args.eval_object_set} objects; "
         "saw the target: the share of episodes in which it was ever in view; focus held and steps over the episodes "

@@ -60,6 +60,9 @@ class Args:
     stay_needs_success: bool = False
     """deploy it to take `stay` only where the box's mask stats show success (`EnvConfig.stay_needs_success`; with
     --as-dqn it is on already where the state has the mask stats; scripts/make_search_occluded.sh)"""
+    held_box_tracking: bool = False
+    """deploy it with the held box moving as the camera does and dropped once centred and unseen
+    (`EnvConfig.with_held_box_tracking`; with --as-dqn it is on already; scripts/make_search_occluded.sh)"""
     fine_near_centre: float | None = None
     """how far from the image centre the deployed policy takes the fine moves (`EnvConfig.fine_near_centre`;
     None: the trained env's, or with --as-dqn envs.DQN_FINE_NEAR_CENTRE, docs/control.md §18)"""
@@ -80,6 +83,8 @@ def ship(args: Args) -> EnvConfig:
         env = env.as_dqn_deployed().replace(**{name: bar for name, bar in bars.items() if bar})
     else:
         env = env.on_fcn_box(tuple(bars.values()))
+    if args.held_box_tracking:
+        env = env.with_held_box_tracking()
     held = args.box_hold_steps > 0  # nothing held: nothing to move or drop
     env = env.replace(
         object_set=args.object_set,

@@ -317,19 +317,27 @@ class EnvConfig:
         tracked box, and the exploration resuming after `DQN_EXPLORE_RESUMES_AFTER` steps of an empty box, and
         candidates from `DQN_FCN_CANDIDATE_THRESHOLD` approached (docs/control.md §12, §17–§21, §25, §27, §30–§32,
         §34)."""
-        return self.on_fcn_box(DQN_FCN_THRESHOLDS).replace(
-            fcn_segment_size=FCN_SEGMENT_SIZE,
-            fine_step_size=DQN_FINE_STEP_SIZE,
-            fine_near_centre=DQN_FINE_NEAR_CENTRE,
-            fine_from_area=DQN_FINE_FROM_AREA,
-            back_when_close=DQN_BACK_WHEN_CLOSE,
-            stay_needs_success=self.with_mask_stats,
-            box_hold_follows_camera=True,
-            box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED,
-            fcn_border_bar_near_box=True,
-            explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,
-            fcn_candidate_threshold=DQN_FCN_CANDIDATE_THRESHOLD,
+        return (
+            self.on_fcn_box(DQN_FCN_THRESHOLDS)
+            .with_held_box_tracking()
+            .replace(
+                fcn_segment_size=FCN_SEGMENT_SIZE,
+                fine_step_size=DQN_FINE_STEP_SIZE,
+                fine_near_centre=DQN_FINE_NEAR_CENTRE,
+                fine_from_area=DQN_FINE_FROM_AREA,
+                back_when_close=DQN_BACK_WHEN_CLOSE,
+                stay_needs_success=self.with_mask_stats,
+                fcn_border_bar_near_box=True,
+                explore_resumes_after=DQN_EXPLORE_RESUMES_AFTER,
+                fcn_candidate_threshold=DQN_FCN_CANDIDATE_THRESHOLD,
+            )
         )
+
+    def with_held_box_tracking(self) -> EnvConfig:
+        """This config with the held box moving as the camera does and dropped once centred and unseen for
+        `DQN_BOX_HOLD_DROP_CENTRED` held steps, as the shipped DQNs (docs/control.md §25, §27) and the memory agent
+        for occluded scenes (docs/task.md#occluders) are deployed."""
+        return self.replace(box_hold_follows_camera=True, box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED)
 
     @classmethod
     def from_dict(cls, options: dict) -> EnvConfig:

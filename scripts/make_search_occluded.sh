@@ -6,8 +6,8 @@
 # occluders=2, the ground truth's box, train objects, 2 worker processes, 20,000 env steps, ~4 min) for each
 # seed, evaluate every seed and the baselines on 50 held-out episodes (unseen objects, occluders=2, FCN box as
 # deployed and ground-truth box), then ship seed 0 (chosen before training, not the best) on the FCN's box as
-# deployed (its own bars, and `stay` only where the mask stats say success, as every seed is evaluated:
-# baselines/ship_dqn.py) and evaluate it. Finished runs and evaluations are kept under $OUT (runs/search_over) and
+# deployed (its own bars, `stay` only where the mask stats say success, and the held box tracking the camera as
+# the shipped DQNs' does, as every seed is evaluated: baselines/ship_dqn.py) and evaluate it. Finished runs and evaluations are kept under $OUT (runs/search_over) and
 # skipped on a rerun. About 40 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,10 +21,11 @@ OUT=${OUT:-runs/search_over}
 $PY baselines/search_seeds.py --seeds $SEEDS --total-steps "$STEPS" --train.teacher servo --train.teacher-looks-over \
     --train.teacher-stays --train.env.stay-action --train.env.with-mask-stats --train.env.occluders 2 \
     --train.dagger-updates 32 --train.dagger-focal-gamma 2 --train.actor-sees-input \
-    --dqn-checkpoint agents/weights/dqn_hold_stay.pt --stay-needs-success --out-dir "$OUT" --figures-dir "$OUT/figures" \
+    --dqn-checkpoint agents/weights/dqn_hold_stay.pt --stay-needs-success --held-box-tracking --out-dir "$OUT" \
+    --figures-dir "$OUT/figures" \
     "$@"
 $PY baselines/ship_dqn.py --checkpoint "$OUT/seed$SHIP_SEED/agent.pt" --out agents/weights/search_occluded.pt \
-    --stay-needs-success
+    --stay-needs-success --held-box-tracking
 $PY baselines/evaluate.py --policy memory --checkpoint agents/weights/search_occluded.pt --episodes 50 \
     --json outputs/search_occluded_shipped.json
 $PY baselines/occlusion.py --scenes 50 --image-size 128 --timing-steps 0 \

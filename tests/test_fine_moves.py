@@ -96,6 +96,12 @@ def test_shipping_keeps_the_fine_moves_their_zone_and_the_segmenting_size_a_dqn_
         ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "guard.pt"), stay_needs_success=True)
     )
     assert not kept.stay_needs_success and guarded == kept.replace(stay_needs_success=True)
+    tracking = ship_dqn.ship(
+        ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "track.pt"), held_box_tracking=True)
+    )
+    assert not kept.box_hold_follows_camera and tracking == kept.replace(
+        box_hold_follows_camera=True, box_hold_drop_centred=DQN_BOX_HOLD_DROP_CENTRED
+    )
     as_dqn = ship_dqn.ship(ship_dqn.Args(checkpoint=checkpoint, out=str(tmp_path / "as_dqn.pt"), as_dqn=True))
     acquire, track = DQN_FCN_THRESHOLDS
     assert (

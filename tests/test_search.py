@@ -38,7 +38,13 @@ from mani_active_vision.agents.recurrent_network import (
     save_agent,
 )
 from mani_active_vision.directions import FINE_AREA, FINE_NEAR_CENTRE
-from mani_active_vision.envs import DQN_FCN_THRESHOLDS, DQN_FINE_STEP_SIZE, FCN_IMAGE_SIZE, EnvConfig
+from mani_active_vision.envs import (
+    DQN_BOX_HOLD_DROP_CENTRED,
+    DQN_FCN_THRESHOLDS,
+    DQN_FINE_STEP_SIZE,
+    FCN_IMAGE_SIZE,
+    EnvConfig,
+)
 from mani_active_vision.evaluation.protocol import evaluate
 
 SHORT = EnvConfig(with_ee_pos=True, max_episode_steps=12)  # short episodes: the same code, less time
@@ -451,8 +457,11 @@ def test_the_memory_agent_shipped_for_occluded_scenes_looks_over_and_acts_as_dep
     path, config, deployed, trained = shipped_memory_agent("search_occluded.pt")
     assert config["teacher"] == "servo" and config["teacher_looks_over"] and config["teacher_stays"]
     assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True, occluders=2)
-    # scripts/make_search_occluded.sh's, with `stay` only where the mask stats say success (docs/task.md#occluders)
-    assert deployed == trained.replace(object_set="unseen").on_fcn_box().replace(stay_needs_success=True)
+    # scripts/make_search_occluded.sh's, with `stay` only where the mask stats say success and the held box tracking
+    # the camera, as the shipped DQNs' (docs/task.md#occluders)
+    on_box = trained.replace(object_set="unseen").on_fcn_box().replace(stay_needs_success=True)
+    assert deployed == on_box.with_held_box_tracking()
+    assert deployed.box_hold_follows_camera and deployed.box_hold_drop_centred == DQN_BOX_HOLD_DROP_CENTRED
     assert_acts_in_a_short_episode(path, deployed)
 
 
@@ -499,6 +508,19 @@ def test_search_seeds_evaluates_every_agent_on_the_training_scenes_occluders(bas
     for box in ("fcn", "ground_truth"):
         config = search_seeds.eval_config(EnvConfig(), args, box)
         assert config.occluders == 2 and config.object_set == args.eval_object_set and config.box_source == box
+
+
+def test_search_seeds_tracks_the_held_box_on_the_fcns_box_only_and_keeps_those_evaluations_apart(baseline_script):
+    search_seeds = baseline_script("search_seeds")
+    args = search_seeds.Args(train=search.Args(env=EnvConfig(occluders=2)))
+    tracking = dataclasses.replace(args, held_box_tracking=True)
+    on_box = search_seeds.eval_config(EnvConfig(), args, "fcn")
+    assert not on_box.box_hold_follows_camera and on_box.box_hold_steps > 0
+    assert search_seeds.eval_config(EnvConfig(), tracking, "fcn") == on_box.with_held_box_tracking()
+    ground_truth = search_seeds.eval_config(EnvConfig(), tracking, "ground_truth")  # nothing held there
+    assert ground_truth == search_seeds.eval_config(EnvConfig(), args, "ground_truth")
+    assert search_seeds.memory_path(tracking, 0, "fcn").endswith("eval_fcn_tracking_50.json")
+    assert search_seeds.memory_path(tracking, 0, "ground_truth") == search_seeds.memory_path(args, 0, "ground_truth")
 
 
 def test_search_seeds_evaluates_the_teachers_sweep_and_beside_it_the_default_one(baseline_script, monkeypatch):
