@@ -131,7 +131,7 @@ def eval_config(base: EnvConfig, args: Args, box: str, thresholds: tuple[float, 
     if box != "fcn":
         return base.replace(box_source=box, box_hold_steps=0)
     base = base.on_fcn_box(thresholds)
-    return base.with_held_box_tracking() if args.held_box_tracking else base
+    return base.with_held_box_tracking() if tracked(args, box) else base
 
 
 def references(args: Args, box: str) -> dict[int, float]:
@@ -201,10 +201,14 @@ def barred(args: Args, box: str) -> bool:
     return box == "fcn" and any(args.fcn_thresholds)
 
 
+def tracked(args: Args, box: str) -> bool:
+    return box == "fcn" and args.held_box_tracking
+
+
 def box_suffix(args: Args, box: str) -> str:
     """Evaluations (and references) with the verifier's bars or the held box tracking are kept in their own files."""
     bars = "_bars{:g}_{:g}".format(*args.fcn_thresholds) if barred(args, box) else ""
-    return bars + ("_tracking" if box == "fcn" and args.held_box_tracking else "")
+    return bars + ("_tracking" if tracked(args, box) else "")
 
 
 def memory_path(args: Args, seed: int, box: str) -> str:
@@ -381,7 +385,7 @@ def main(args: Args):
     text = []
     for box in args.boxes:
         bars = " (memory agents with the verifier's bars {:g}, {:g})".format(*args.fcn_thresholds)
-        tracking = ", the held box tracking the camera" if box == "fcn" and args.held_box_tracking else ""
+        tracking = ", the held box tracking the camera" if tracked(args, box) else ""
         text.append(f"### {box} box{bars if barred(args, box) else ''}{tracking}\n\n{table(args, box)}\n")
     note = (
         f"({args.eval_episodes} evaluation episodes per agent from seed 1,000,000, {args.eval_object_set} objects; "

@@ -7,8 +7,8 @@
 # seed, evaluate every seed and the baselines on 50 held-out episodes (unseen objects, occluders=2, FCN box as
 # deployed and ground-truth box), then ship seed 0 (chosen before training, not the best) on the FCN's box as
 # deployed (its own bars, `stay` only where the mask stats say success, and the held box tracking the camera as
-# the shipped DQNs' does, as every seed is evaluated: baselines/ship_dqn.py) and evaluate it. Finished runs and evaluations are kept under $OUT (runs/search_over) and
-# skipped on a rerun. About 40 min on 2 cores.
+# the shipped DQNs' box does, as every seed is evaluated: baselines/ship_dqn.py) and evaluate it. Finished runs
+# and evaluations are kept under $OUT (runs/search_over) and skipped on a rerun. About 40 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
