@@ -301,6 +301,11 @@ OVER_NEAR = 0.05
 """... until its box covers this share of the image; then it is centred."""
 OVER_FILLS = 0.36
 """... and a box covering more than this share (or spanning the image) is backed away from."""
+OVER_RETREAT = 0.15
+"""... and a box covering at least this share but lying below the centring band is retreated from level: a step back
+(along the pitched axis: back and up), then one down; where the step back is refused (a panel behind), down. Stepping
+down alone brings such a target up the image but nearer, until it is cut by the image's bottom; the servo then
+cycled between down, a refused step back and up (measured: docs/task.md#a-level-retreat-from-a-low-near-target-2026-12-08-adopted)."""
 
 
 class Sweep:
@@ -448,7 +453,8 @@ class ServoPolicy:
     target is kept low in the image (`OVER_ROW`) until its box covers `OVER_NEAR` of the image, by which time
     the camera is past the panel. It also backs off a box that fills the view, does not repeat a refused step
     (it goes forward after a refused up or down, else up) and does not turn back across the target at once: close up,
-    one orbit step moves the box by more than the centring tolerance (docs/task.md#occluders). `lead_in=False`
+    one orbit step moves the box by more than the centring tolerance (docs/task.md#occluders). A near target low in
+    the image is retreated from level (`OVER_RETREAT`). `lead_in=False`
     leaves the lead-in out, for a servo that takes over after an exploration that has looked over already.
 
     With `fine` it serves with the fine moves where the env has them (env.fine_step_size) while the box is near
@@ -482,11 +488,13 @@ class ServoPolicy:
         self.hold, self.hold_limits = hold, hold_limits
         self.look_over = look_over
         self.last_action = np.full(self.num_envs, -1)
+        self.retreating = np.zeros(self.num_envs, dtype=bool)  # the last step back began a level retreat
         self.candidates = Candidates(self.num_envs)
 
     def reset(self, obs, info):
         self.sweep.reset()
         self.last_action[:] = -1
+        self.retreating[:] = False
         self.candidates.reset()
 
     def act(self, obs, info) -> np.ndarray:
@@ -513,9 +521,16 @@ class ServoPolicy:
         action[off_x] = turn[off_x]
         served = (w > 0) & ~leading  # a lead-in is finished before the target is served
         if self.look_over:
+            refused = info_flags(info, "refused", self.num_envs)
+            low_near = served & (cy > lowest) & (w * h >= OVER_RETREAT)
+            back_refused = refused & (self.last_action == BACKWARD)
+            down = served & self.retreating & (self.last_action == BACKWARD)  # the retreat's second half
+            action[low_near & ~back_refused] = BACKWARD
+            action[(low_near & back_refused) | down] = DOWN
+            self.retreating = low_near & ~back_refused & ~down
             fills = ((x <= 0.01) & (x + w >= 0.99)) | ((y <= 0.01) & (y + h >= 0.99)) | (w * h > OVER_FILLS)
             action[fills] = BACKWARD
-            again = served & info_flags(info, "refused", self.num_envs) & (action == self.last_action)
+            again = served & refused & (action == self.last_action)
             action[again] = np.where(np.isin(action[again], (UP, DOWN)), FORWARD, UP)
         action[~served] = sweep[~served]
         self.last_action[:] = action

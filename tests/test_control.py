@@ -583,6 +583,26 @@ def test_the_look_over_servo_approaches_from_above_backs_off_and_does_not_repeat
     assert act(make_policy("servo", env, look_over=True), small_and_low) == LOOK_OVER[0]  # with the lead-in first
 
 
+def test_the_look_over_servo_retreats_level_from_a_near_target_low_in_the_image():
+    env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(6))
+    servo = make_policy("servo", env, look_over=True, lead_in=False)
+    free, refused = {"refused": np.array([False])}, {"refused": np.array([True])}
+
+    def act(box, info=free):
+        return int(servo.act(np.array([box], np.float32), info)[0])
+
+    near_and_low = [0.25, 0.5, 0.5, 0.45]  # covers 0.225, centre row 0.725: a step down alone would cut it
+    centred = [0.3, 0.42, 0.4, 0.35]  # what the step back shows: centred, so alone it would be approached
+    assert act(near_and_low) == BACKWARD  # back and up along the pitched axis...
+    assert act(centred) == DOWN  # ...then down: level, away from the target
+    assert act(centred) == FORWARD  # the retreat done, it approaches again
+    assert act(near_and_low) == BACKWARD
+    assert act(near_and_low, refused) == DOWN  # the step back refused (a panel behind): down
+    assert act(near_and_low) == BACKWARD
+    servo.last_action[:] = FORWARD  # a learner asking the servo (agents.search.ServoTeacher) did not step back
+    assert act(centred) == FORWARD  # so no retreat to finish
+
+
 def test_policy_kwargs_look_over_reaches_the_servo_and_the_exploration_and_names_a_wrong_pairing():
     env = types.SimpleNamespace(unwrapped=types.SimpleNamespace(num_envs=1), action_space=gym.spaces.Discrete(6))
     servo = make_policy("servo", env, **policy_kwargs("servo", look_over=True))
