@@ -41,6 +41,8 @@ from mani_active_vision.metrics import summarize  # noqa: E402
 
 COLUMNS = ("success", "success_final", "focus_held", "spl", "steps_to_see", "steps_to_success")
 BOXES = ("fcn", "ground_truth")
+WHERE = ("run_dir", "run_name")
+"""`agents.search.Args` options that say where a run is written, not what it is"""
 
 
 @dataclass
@@ -103,7 +105,8 @@ def seed_dir(args: Args, seed: int) -> str:
 def train_seed(args: Args, seed: int):
     """Train one seed, unless its folder holds a finished run with these options (one with others is an
     error: its evaluations would be taken for this configuration's; an option its run predates counts as its
-    default)."""
+    default; where the run was written from, `run_dir` and `run_name`, is no option: a run trained by
+    `python -m mani_active_vision.agents.search --run-dir <out_dir>` into the same folder counts)."""
     history = os.path.join(seed_dir(args, seed), "history.json")
     options = dataclasses.replace(
         args.train, seed=seed, total_steps=args.total_steps, run_dir=args.out_dir, run_name=f"seed{seed}"
@@ -112,7 +115,7 @@ def train_seed(args: Args, seed: int):
     if finished["complete"]:
         saved, wanted = finished["config"], json.loads(json.dumps(dataclasses.asdict(options)))
         defaults = json.loads(json.dumps(dataclasses.asdict(search.Args())))  # an option added since ran as its default
-        differ = sorted(k for k in wanted if saved.get(k, defaults.get(k)) != wanted[k])
+        differ = sorted(k for k in wanted if k not in WHERE and saved.get(k, defaults.get(k)) != wanted[k])
         if differ:
             raise ValueError(
                 f"{seed_dir(args, seed)} holds a finished run with other options ({', '.join(differ)}): "

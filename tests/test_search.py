@@ -569,6 +569,9 @@ def test_search_seeds_takes_a_finished_run_from_before_an_option_as_run_at_its_d
     (tmp_path / "seed0").mkdir()
     (tmp_path / "seed0" / "history.json").write_text(json.dumps({"complete": True, "config": config}))
     search_seeds.train_seed(args, 0)  # finished: nothing to train
+    config.update(run_dir="runs/elsewhere", run_name="")  # trained by agents.search --run-dir into this folder
+    (tmp_path / "seed0" / "history.json").write_text(json.dumps({"complete": True, "config": config}))
+    search_seeds.train_seed(args, 0)  # still this configuration's run
     turning = dataclasses.replace(args, train=dataclasses.replace(args.train, teacher_first_turn=SWEEP_TURN))
     with pytest.raises(ValueError, match="holds a finished run with other options .teacher_first_turn."):
         search_seeds.train_seed(turning, 0)
