@@ -456,7 +456,9 @@ def test_the_shipped_memory_agent_loads_and_acts_as_deployed():
 def test_the_memory_agent_shipped_for_occluded_scenes_looks_over_and_acts_as_deployed():
     path, config, deployed, trained = shipped_memory_agent("search_occluded.pt")
     assert config["teacher"] == "servo" and config["teacher_looks_over"] and config["teacher_stays"]
-    assert trained == EnvConfig(with_ee_pos=True, stay_action=True, with_mask_stats=True, occluders=2)
+    assert trained == EnvConfig(
+        with_ee_pos=True, stay_action=True, with_mask_stats=True, occluders=2, image_size=128, fcn_segment_size=128
+    )  # on a 128² camera, the FCN segmenting at 128² where deployed
     # scripts/make_search_occluded.sh's, with `stay` only where the mask stats say success and the held box tracking
     # the camera, as the shipped DQNs' (docs/task.md#occluders)
     on_box = trained.replace(object_set="unseen").on_fcn_box().replace(stay_needs_success=True)
